@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Installs the Debian packages the pipeline needs, if any is missing:
+# gmsh (meshing), FreeFEM with its plugins (cross-checks), libhdf5 (result
+# files), pkg-config and a C toolchain (for the hdf5 crate).
+# Uses sudo when not root. Rust (cargo ≥ 1.85) must already be installed.
+set -euo pipefail
+packages=(gmsh freefem++ libfreefem++ libhdf5-dev hdf5-tools pkg-config build-essential)
+missing=()
+for p in "${packages[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+    echo "installing: ${missing[*]}"
+    sudo=""
+    [ "$(id -u)" -eq 0 ] || sudo="sudo"
+    export DEBIAN_FRONTEND=noninteractive
+    $sudo apt-get update -qq
+    $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+if ! command -v cargo >/dev/null 2>&1; then
+    echo "error: cargo not found: install Rust (https://rustup.rs), version 1.85 or newer" >&2
+    exit 1
+fi

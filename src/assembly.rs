@@ -1,0 +1,350 @@
+//! Assembly of forms into sparse matrices and vectors.
+//!
+//! Forms are plain functions of the trial function `u`, the test function `v`
+//! and the quadrature point (scikit-fem style); the element loop, the DOF maps
+//! and the quadrature live here once. Dirichlet conditions are imposed by
+//! elimination ([`DofNumbering`]).
+
+use crate::quadrature::TriangleRule;
+use crate::space::{Element, LocalBasis, Space, TriangleGeometry, MAX_LOCAL};
+use faer::sparse::{SparseColMat, Triplet};
+
+/// A basis function (or an FE function) at one quadrature point.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ShapeValue {
+    pub value: f64,
+    pub grad: [f64; 2],
+}
+
+/// One quadrature point of one triangle.
+#[derive(Debug, Clone, Copy)]
+pub struct QuadPoint {
+    pub triangle: usize,
+    pub lambda: [f64; 3],
+    pub x: [f64; 2],
+    /// Weight including the triangle area.
+    pub weight: f64,
+}
+
+pub fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
+    a[0] * b[0] + a[1] * b[1]
+}
+
+/// ∇u·∇v: the Laplacian's bilinear form.
+pub fn laplace(u: &ShapeValue, v: &ShapeValue, _: &QuadPoint) -> f64 {
+    dot(u.grad, v.grad)
+}
+
+/// u v: the L² (mass) bilinear form.
+pub fn mass(u: &ShapeValue, v: &ShapeValue, _: &QuadPoint) -> f64 {
+    u.value * v.value
+}
+
+/// Basis functions of an element tabulated at the points of a rule.
+struct Tabulation {
+    element: Element,
+    at_points: Vec<LocalBasis>,
+}
+
+impl Tabulation {
+    fn new(element: Element, rule: &TriangleRule) -> Self {
+        Tabulation {
+            element,
+            at_points: rule.points.iter().map(|&l| element.basis(l)).collect(),
+        }
+    }
+
+    /// Physical values and gradients of the local basis at point q of a triangle.
+    fn shapes(&self, geometry: &TriangleGeometry, q: usize) -> [ShapeValue; MAX_LOCAL] {
+        let b = &self.at_points[q];
+        let mut s = [ShapeValue::default(); MAX_LOCAL];
+        for i in 0..self.element.n_local() {
+            s[i] = ShapeValue {
+                value: b.values[i],
+                grad: geometry.gradient(b.d_lambda[i]),
+            };
+        }
+        s
+    }
+}
+
+/// Coordinate-format matrix entries (duplicates are summed on conversion).
+#[derive(Debug, Clone, Default)]
+pub struct Triplets {
+    pub nrows: usize,
+    pub ncols: usize,
+    pub entries: Vec<(usize, usize, f64)>,
+}
+
+impl Triplets {
+    pub fn new(nrows: usize, ncols: usize) -> Self {
+        Triplets {
+            nrows,
+            ncols,
+            entries: Vec::new(),
+        }
+    }
+
+    /// Adds `other` with its rows shifted by `row_offset` and columns by `col_offset`
+    /// (to build block matrices).
+    pub fn add_block(
+        &mut self,
+        other: &Triplets,
+        row_offset: usize,
+        col_offset: usize,
+        scale: f64,
+    ) {
+        self.entries.extend(
+            other
+                .entries
+                .iter()
+                .map(|&(r, c, v)| (r + row_offset, c + col_offset, scale * v)),
+        );
+    }
+
+    /// Adds the transpose of `other`, shifted.
+    pub fn add_block_transposed(
+        &mut self,
+        other: &Triplets,
+        row_offset: usize,
+        col_offset: usize,
+        scale: f64,
+    ) {
+        self.entries.extend(
+            other
+                .entries
+                .iter()
+                .map(|&(r, c, v)| (c + row_offset, r + col_offset, scale * v)),
+        );
+    }
+
+    pub fn to_sparse(&self) -> SparseColMat<usize, f64> {
+        let t: Vec<_> = self
+            .entries
+            .iter()
+            .map(|&(r, c, v)| Triplet::new(r, c, v))
+            .collect();
+        SparseColMat::try_new_from_triplets(self.nrows, self.ncols, &t)
+            .expect("assembly produced indices inside the matrix")
+    }
+}
+
+/// Assembles ∫ form(u, v, x) over the mesh: rows are test dofs, columns trial dofs.
+pub fn assemble_bilinear(
+    test: &Space,
+    trial: &Space,
+    rule: &TriangleRule,
+    form: impl Fn(&ShapeValue, &ShapeValue, &QuadPoint) -> f64,
+) -> Triplets {
+    let mesh = test.mesh;
+    let (tab_u, tab_v) = (
+        Tabulation::new(trial.element, rule),
+        Tabulation::new(test.element, rule),
+    );
+    let (nu, nv) = (trial.element.n_local(), test.element.n_local());
+    let mut out = Triplets::new(test.n_dofs(), trial.n_dofs());
+    out.entries.reserve(mesh.n_triangles() * nu * nv);
+    let mut local = [[0.0; MAX_LOCAL]; MAX_LOCAL];
+    for t in 0..mesh.n_triangles() {
+        let g = TriangleGeometry::new(mesh, t);
+        local.iter_mut().for_each(|row| row.fill(0.0));
+        for (q, (&lambda, &w)) in rule.points.iter().zip(&rule.weights).enumerate() {
+            let p = QuadPoint {
+                triangle: t,
+                lambda,
+                x: g.point(lambda),
+                weight: w * g.area,
+            };
+            let (su, sv) = (tab_u.shapes(&g, q), tab_v.shapes(&g, q));
+            for i in 0..nv {
+                for j in 0..nu {
+                    local[i][j] += p.weight * form(&su[j], &sv[i], &p);
+                }
+            }
+        }
+        let (rows, _) = test.element_dofs(t);
+        let (cols, _) = trial.element_dofs(t);
+        for i in 0..nv {
+            for j in 0..nu {
+                out.entries.push((rows[i], cols[j], local[i][j]));
+            }
+        }
+    }
+    out
+}
+
+/// Assembles ∫ form(v, x) over the mesh, one entry per test dof.
+pub fn assemble_linear(
+    test: &Space,
+    rule: &TriangleRule,
+    form: impl Fn(&ShapeValue, &QuadPoint) -> f64,
+) -> Vec<f64> {
+    let mesh = test.mesh;
+    let tab = Tabulation::new(test.element, rule);
+    let n = test.element.n_local();
+    let mut out = vec![0.0; test.n_dofs()];
+    for t in 0..mesh.n_triangles() {
+        let g = TriangleGeometry::new(mesh, t);
+        let (dofs, _) = test.element_dofs(t);
+        for (q, (&lambda, &w)) in rule.points.iter().zip(&rule.weights).enumerate() {
+            let p = QuadPoint {
+                triangle: t,
+                lambda,
+                x: g.point(lambda),
+                weight: w * g.area,
+            };
+            let s = tab.shapes(&g, q);
+            for i in 0..n {
+                out[dofs[i]] += p.weight * form(&s[i], &p);
+            }
+        }
+    }
+    out
+}
+
+/// Integrates a functional of one FE function (value and gradient at each point),
+/// per triangle: e.g. error norms against an exact solution.
+pub fn integrate_per_triangle(
+    space: &Space,
+    coefficients: &[f64],
+    rule: &TriangleRule,
+    integrand: impl Fn(&ShapeValue, &QuadPoint) -> f64,
+) -> Vec<f64> {
+    let mesh = space.mesh;
+    let tab = Tabulation::new(space.element, rule);
+    let n = space.element.n_local();
+    (0..mesh.n_triangles())
+        .map(|t| {
+            let g = TriangleGeometry::new(mesh, t);
+            let (dofs, _) = space.element_dofs(t);
+            let mut sum = 0.0;
+            for (q, (&lambda, &w)) in rule.points.iter().zip(&rule.weights).enumerate() {
+                let p = QuadPoint {
+                    triangle: t,
+                    lambda,
+                    x: g.point(lambda),
+                    weight: w * g.area,
+                };
+                let s = tab.shapes(&g, q);
+                let mut uh = ShapeValue::default();
+                for i in 0..n {
+                    let c = coefficients[dofs[i]];
+                    uh.value += c * s[i].value;
+                    uh.grad[0] += c * s[i].grad[0];
+                    uh.grad[1] += c * s[i].grad[1];
+                }
+                sum += p.weight * integrand(&uh, &p);
+            }
+            sum
+        })
+        .collect()
+}
+
+/// Lumped mass: the row sums of the mass matrix (for P1, |supp φ_i|/3).
+pub fn lumped_mass(space: &Space, rule: &TriangleRule) -> Vec<f64> {
+    assemble_linear(space, rule, |v, _| v.value)
+}
+
+/// Which global dofs are free (unknowns) and which are fixed (Dirichlet).
+#[derive(Debug, Clone)]
+pub struct DofNumbering {
+    /// For each global dof, its index among the free dofs, or None if fixed.
+    pub free_index: Vec<Option<usize>>,
+    /// The free dofs in order.
+    pub free_dofs: Vec<usize>,
+}
+
+impl DofNumbering {
+    pub fn from_fixed_mask(fixed: &[bool]) -> Self {
+        let mut free_index = vec![None; fixed.len()];
+        let mut free_dofs = Vec::new();
+        for (d, &f) in fixed.iter().enumerate() {
+            if !f {
+                free_index[d] = Some(free_dofs.len());
+                free_dofs.push(d);
+            }
+        }
+        DofNumbering {
+            free_index,
+            free_dofs,
+        }
+    }
+
+    pub fn all_free(n: usize) -> Self {
+        Self::from_fixed_mask(&vec![false; n])
+    }
+
+    pub fn n_free(&self) -> usize {
+        self.free_dofs.len()
+    }
+
+    pub fn n_total(&self) -> usize {
+        self.free_index.len()
+    }
+
+    pub fn restrict(&self, full: &[f64]) -> Vec<f64> {
+        self.free_dofs.iter().map(|&d| full[d]).collect()
+    }
+
+    /// The full vector: free values from `reduced`, fixed ones from `fixed_values`.
+    pub fn extend(&self, reduced: &[f64], fixed_values: &[f64]) -> Vec<f64> {
+        let mut full = fixed_values.to_vec();
+        for (k, &d) in self.free_dofs.iter().enumerate() {
+            full[d] = reduced[k];
+        }
+        full
+    }
+}
+
+/// Keeps the free rows and columns of a matrix. Returns the reduced matrix
+/// and −A_free,fixed · fixed_values, the right-hand-side shift that lifts
+/// non-homogeneous Dirichlet data.
+pub fn eliminate(
+    a: &Triplets,
+    rows: &DofNumbering,
+    cols: &DofNumbering,
+    fixed_values: &[f64],
+) -> (Triplets, Vec<f64>) {
+    let mut reduced = Triplets::new(rows.n_free(), cols.n_free());
+    let mut shift = vec![0.0; rows.n_free()];
+    for &(r, c, v) in &a.entries {
+        if let Some(ri) = rows.free_index[r] {
+            match cols.free_index[c] {
+                Some(ci) => reduced.entries.push((ri, ci, v)),
+                None => shift[ri] -= v * fixed_values[c],
+            }
+        }
+    }
+    (reduced, shift)
+}
+
+/// y = A x.
+pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
+    let mut y = vec![0.0; a.nrows()];
+    let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    for j in 0..a.ncols() {
+        let xj = x[j];
+        if xj != 0.0 {
+            for k in cp[j]..cp[j + 1] {
+                y[ri[k]] += val[k] * xj;
+            }
+        }
+    }
+    y
+}
+
+/// y = Aᵀ x.
+pub fn mat_t_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
+    let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    (0..a.ncols())
+        .map(|j| (cp[j]..cp[j + 1]).map(|k| val[k] * x[ri[k]]).sum())
+        .collect()
+}
+
+pub fn norm_inf(x: &[f64]) -> f64 {
+    x.iter().fold(0.0, |m, v| m.max(v.abs()))
+}
+
+pub fn norm2(x: &[f64]) -> f64 {
+    x.iter().map(|v| v * v).sum::<f64>().sqrt()
+}

@@ -1,0 +1,29 @@
+//! obstacle-fem: finite elements and Uzawa-type solvers for obstacle and
+//! shell contact problems.
+//!
+//! The pipeline, one module a stage: [`scene`] (the one input) → [`gmsh`] /
+//! [`mesh`] → [`space`] (FE spaces, DOF maps) → [`assembly`] (forms as plain
+//! functions) → [`models`] (membrane, ...) build an algebraic contact problem
+//! → [`solvers`] (know nothing about the models) → [`output`] (HDF5 + XDMF).
+//! [`pipeline`] runs these steps for one scene; [`study`] runs many.
+
+// FE kernels index several arrays with the same local index; iterator
+// chains would hide that, so index loops are kept.
+#![allow(clippy::needless_range_loop)]
+
+pub mod assembly;
+pub mod error;
+pub mod gmsh;
+pub mod linalg;
+pub mod mesh;
+pub mod models;
+pub mod output;
+pub mod pipeline;
+pub mod progress;
+pub mod quadrature;
+pub mod scene;
+pub mod solvers;
+pub mod space;
+pub mod study;
+
+pub use error::{Error, Result};

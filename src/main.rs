@@ -1,0 +1,155 @@
+//! `obstacle`: the command line of the pipeline.
+
+use clap::{Parser, Subcommand};
+use obstacle_fem::error::{Error, Result};
+use obstacle_fem::output::{read_result, summary};
+use obstacle_fem::pipeline::{run_scene, scene_mesh};
+use obstacle_fem::progress::progress_wanted;
+use obstacle_fem::scene::Scene;
+use obstacle_fem::study::{csv_table, markdown_table, run_study, Study};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "obstacle",
+    version,
+    about = "Obstacle and shell contact problems: gmsh → FE + Uzawa → HDF5"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Mesh, assemble and solve a scene; write FILE.h5 (+ .xdmf, .msh beside it).
+    Solve {
+        scene: PathBuf,
+        /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Result file (default: build/results/<scene name>.h5).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// No progress display.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Mesh a scene's geometry with gmsh (MSH 2.2) and validate the mesh.
+    Mesh {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Mesh file (default: build/meshes/<scene name>.msh).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Print a summary of a result file.
+    Info { file: PathBuf },
+    /// Run a study (a scene over a grid of overrides) and print its table.
+    Study {
+        study: PathBuf,
+        /// Folder for the runs' result files, the CSV and the Markdown table.
+        #[arg(long, default_value = "build/studies")]
+        out_dir: PathBuf,
+        #[arg(long)]
+        quiet: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Solve {
+            scene,
+            set,
+            out,
+            quiet,
+        } => {
+            let scene = Scene::load(&scene, &set)?;
+            let out =
+                out.unwrap_or_else(|| PathBuf::from(format!("build/results/{}.h5", scene.name)));
+            let s = run_scene(&scene, &out, !quiet)?;
+            println!(
+                "{}: {} on {} triangles ({} dofs), {} iterations, stop: {}, converged: {}, KKT {:.3e}, {:.3}s → {}",
+                s.scene,
+                s.element,
+                s.n_triangles,
+                s.n_dofs,
+                s.iterations,
+                s.stop_reason,
+                s.converged,
+                s.measures.kkt,
+                s.wall_seconds,
+                out.display()
+            );
+            if let Some(e) = s.errors {
+                println!(
+                    "  errors vs exact: L² {:.4e}, H¹ {:.4e}; contact radius {:.5} (exact {:.5})",
+                    e.l2, e.h1, e.contact_radius, e.exact_contact_radius
+                );
+            }
+            if !s.converged {
+                eprintln!(
+                    "warning: not converged: relative KKT measure {:.3e} > tol {:.1e} after {} iterations (stop: {})",
+                    s.measures.kkt, scene.solver.tol, s.iterations, s.stop_reason
+                );
+            }
+            Ok(())
+        }
+        Command::Mesh { scene, set, out } => {
+            let scene = Scene::load(&scene, &set)?;
+            let out =
+                out.unwrap_or_else(|| PathBuf::from(format!("build/meshes/{}.msh", scene.name)));
+            if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| Error::output(dir, format!("cannot create: {e}")))?;
+            }
+            let mesh = scene_mesh(&scene, &out)?;
+            println!(
+                "{}: {} vertices, {} triangles, {} edges, h = {:.4}",
+                mesh.source.display(),
+                mesh.n_vertices(),
+                mesh.n_triangles(),
+                mesh.n_edges(),
+                mesh.h_max()
+            );
+            Ok(())
+        }
+        Command::Info { file } => {
+            print!("{}", summary(&read_result(&file)?));
+            Ok(())
+        }
+        Command::Study {
+            study,
+            out_dir,
+            quiet,
+        } => {
+            let rows = run_study(&study, &out_dir, !quiet && progress_wanted())?;
+            let spec = Study::load(&study)?;
+            let title = spec.title.clone().unwrap_or_else(|| spec.name.clone());
+            let md = markdown_table(&title, &rows);
+            print!("{md}");
+            write_text(&out_dir.join(format!("{}.md", spec.name)), &md)?;
+            write_text(
+                &out_dir.join(format!("{}.csv", spec.name)),
+                &csv_table(&rows),
+            )?;
+            Ok(())
+        }
+    }
+}
+
+fn write_text(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).map_err(|e| Error::output(path, format!("cannot write: {e}")))
+}

@@ -1,0 +1,298 @@
+//! The membrane obstacle problem (SPEC §1): find u ∈ H¹₀, u ≥ φ, minimising
+//! ½∫|∇u|² − ∫g u; in mixed form (∇u, ∇v) − ⟨λ, v⟩ = (g, v), λ ≥ 0.
+//!
+//! Steps, as in deal.II's step-41: [`MembraneSystem::setup`] (spaces, Dirichlet
+//! dofs) → [`MembraneSystem::assemble`] (K, F, C, g, Riesz weights) → a solver
+//! from `solvers` → [`MembraneSystem::results`] (fields, errors).
+
+use super::exact::RadialObstacle;
+use crate::assembly::{
+    assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
+    mass, DofNumbering,
+};
+use crate::error::{Error, Result};
+use crate::linalg::MatrixKind;
+use crate::mesh::Mesh;
+use crate::output::{AttrValue, Field, Location, ResultData};
+use crate::quadrature::TriangleRule;
+use crate::scene::{ElementPair, Scene};
+use crate::solvers::{Constraint, ContactProblem, SolveReport};
+use crate::space::{Element, Space};
+
+pub struct MembraneSystem<'m> {
+    pub mesh: &'m Mesh,
+    pub pair: ElementPair,
+    pub u_space: Space<'m>,
+    pub lambda_space: Space<'m>,
+    pub numbering: DofNumbering,
+    /// Which effects the scene asked for (recorded in the result file).
+    pub simulated: Vec<String>,
+}
+
+/// Errors of u_h against the exact solution, and the discrete contact radius.
+#[derive(Debug, Clone, Copy)]
+pub struct ExactErrors {
+    pub l2: f64,
+    pub h1: f64,
+    pub lambda_l2: f64,
+    /// √(contact area / π) with the contact set {λ_i > 0} weighted by the Riesz weights.
+    pub contact_radius: f64,
+    pub exact_contact_radius: f64,
+}
+
+impl<'m> MembraneSystem<'m> {
+    /// Spaces and the Dirichlet dofs named by the scene.
+    pub fn setup(mesh: &'m Mesh, scene: &Scene) -> Result<Self> {
+        let (u_element, lambda_element) = match scene.element {
+            ElementPair::P1bP0 => (Element::P1Bubble, Element::P0),
+            ElementPair::P2P1 => (Element::P2, Element::P1),
+        };
+        let u_space = Space::new(mesh, u_element);
+        let tags = dirichlet_tags(mesh, scene)?;
+        let fixed = u_space.boundary_dof_mask(tags.as_deref());
+        let numbering = DofNumbering::from_fixed_mask(&fixed);
+        let mut simulated = vec!["load".to_string(), "dirichlet".to_string()];
+        if scene.obstacle.is_some() {
+            simulated.push("obstacle".into());
+        }
+        Ok(MembraneSystem {
+            mesh,
+            pair: scene.element,
+            u_space,
+            lambda_space: Space::new(mesh, lambda_element),
+            numbering,
+            simulated,
+        })
+    }
+
+    /// The algebraic problem: stiffness K, load F, and (only when the scene has
+    /// an obstacle) the constraint C u ≥ g with its Riesz weights.
+    pub fn assemble(&self, scene: &Scene) -> Result<ContactProblem> {
+        // Degree 5 (Radon, 7 points) is exact for every integrand below:
+        // ∇(P1⊕B3)·∇(P1⊕B3) has degree 4, P2·P1 and φ·P1 degree 3.
+        let rule = TriangleRule::exact_for(5);
+        let g = scene.load.as_ref().map_or(0.0, |l| l.g);
+        let u = &self.u_space;
+        let k_full = assemble_bilinear(u, u, &rule, laplace);
+        let fixed_values = vec![0.0; u.n_dofs()];
+        let (k, shift) = eliminate(&k_full, &self.numbering, &self.numbering, &fixed_values);
+        let f_full = assemble_linear(u, &rule, |v, _| g * v.value);
+        let rhs: Vec<f64> = self
+            .numbering
+            .restrict(&f_full)
+            .iter()
+            .zip(&shift)
+            .map(|(a, b)| a + b)
+            .collect();
+        let constraint = match &scene.obstacle {
+            None => None,
+            Some(obstacle) => {
+                let lam = &self.lambda_space;
+                let c_full = assemble_bilinear(lam, u, &rule, mass);
+                let all_rows = DofNumbering::all_free(lam.n_dofs());
+                let (c, c_shift) = eliminate(&c_full, &all_rows, &self.numbering, &fixed_values);
+                let (mut g_vec, weights) = match self.pair {
+                    ElementPair::P1bP0 => {
+                        // g_T = ∫_T φ_h with φ_h the P1 interpolant; w_T = |T|.
+                        let phi =
+                            Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
+                        let areas: Vec<f64> = (0..self.mesh.n_triangles())
+                            .map(|t| self.mesh.area(t))
+                            .collect();
+                        let g_vec = self
+                            .mesh
+                            .triangles
+                            .iter()
+                            .zip(&areas)
+                            .map(|(tri, a)| a * (phi[tri[0]] + phi[tri[1]] + phi[tri[2]]) / 3.0)
+                            .collect();
+                        (g_vec, areas)
+                    }
+                    ElementPair::P2P1 => {
+                        // g_i = ∫ φ μ_i; w_i = lumped P1 mass (SPEC §1: the Riesz map
+                        // whose projection is a nodal max).
+                        let g_vec =
+                            assemble_linear(lam, &rule, |v, p| obstacle.value(p.x) * v.value);
+                        (g_vec, lumped_mass(lam, &rule))
+                    }
+                };
+                // C_free x + C_fixed u_fixed ≥ g.
+                g_vec.iter_mut().zip(&c_shift).for_each(|(gi, s)| *gi += s);
+                Some(Constraint {
+                    matrix: c.to_sparse(),
+                    obstacle: g_vec,
+                    weights,
+                })
+            }
+        };
+        Ok(ContactProblem {
+            matrix: k.to_sparse(),
+            kind: MatrixKind::SymmetricPositiveDefinite,
+            n_primal: rhs.len(),
+            rhs,
+            constraint,
+        })
+    }
+
+    /// Full coefficient vector of u (Dirichlet values included).
+    pub fn u_coefficients(&self, report: &SolveReport) -> Vec<f64> {
+        self.numbering
+            .extend(&report.x, &vec![0.0; self.u_space.n_dofs()])
+    }
+
+    /// Errors against the exact radial solution, when the scene is that case.
+    pub fn exact_errors(
+        &self,
+        scene: &Scene,
+        problem: &ContactProblem,
+        report: &SolveReport,
+    ) -> Option<ExactErrors> {
+        let (load, obstacle, constraint) = (
+            scene.load.as_ref()?,
+            scene.obstacle.as_ref()?,
+            problem.constraint.as_ref()?,
+        );
+        let exact = RadialObstacle::new(load.g, obstacle.height, obstacle.curvature)?;
+        let u = self.u_coefficients(report);
+        // The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
+        // a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
+        let rule = TriangleRule::exact_for(10);
+        let l2 = integrate_per_triangle(&self.u_space, &u, &rule, |uh, p| {
+            (uh.value - exact.u(p.x)).powi(2)
+        });
+        let h1 = integrate_per_triangle(&self.u_space, &u, &rule, |uh, p| {
+            let e = exact.grad_u(p.x);
+            (uh.grad[0] - e[0]).powi(2) + (uh.grad[1] - e[1]).powi(2)
+        });
+        let lam = integrate_per_triangle(&self.lambda_space, &report.lambda, &rule, |lh, p| {
+            (lh.value - exact.lambda(p.x)).powi(2)
+        });
+        let area: f64 = report
+            .lambda
+            .iter()
+            .zip(&constraint.weights)
+            .filter(|(l, _)| **l > 0.0)
+            .map(|(_, w)| w)
+            .sum();
+        Some(ExactErrors {
+            l2: l2.iter().sum::<f64>().sqrt(),
+            h1: h1.iter().sum::<f64>().sqrt(),
+            lambda_l2: lam.iter().sum::<f64>().sqrt(),
+            contact_radius: (area / std::f64::consts::PI).sqrt(),
+            exact_contact_radius: exact.a,
+        })
+    }
+
+    /// Fields and coefficient vectors for the result file (SPEC §5).
+    pub fn results(
+        &self,
+        scene: &Scene,
+        problem: &ContactProblem,
+        report: &SolveReport,
+    ) -> ResultData {
+        let u = self.u_coefficients(report);
+        let mut data = ResultData {
+            scene_text: scene.text.clone(),
+            write_edges: self.u_space.element == Element::P2,
+            ..Default::default()
+        };
+        data.fields
+            .push(vertex_field("u", self.u_space.vertex_values(&u)));
+        data.dofs.push(("u".into(), u));
+        if let (Some(obstacle), Some(c)) = (&scene.obstacle, &problem.constraint) {
+            let phi = Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
+            data.fields.push(vertex_field("phi", phi));
+            let cx = crate::assembly::mat_vec(&c.matrix, &report.x);
+            let gap: Vec<f64> = (0..cx.len())
+                .map(|i| (cx[i] - c.obstacle[i]) / c.weights[i])
+                .collect();
+            let location = match self.lambda_space.element {
+                Element::P0 => Location::Cell,
+                _ => Location::Vertex,
+            };
+            let contact: Vec<f64> = report
+                .lambda
+                .iter()
+                .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
+                .collect();
+            for (name, values) in [
+                ("lambda", report.lambda.clone()),
+                ("gap_mean", gap),
+                ("contact", contact),
+            ] {
+                data.fields.push(Field {
+                    name: name.into(),
+                    values,
+                    components: 1,
+                    location,
+                });
+            }
+            data.dofs.push(("lambda".into(), report.lambda.clone()));
+        }
+        data.root_attrs
+            .push(("model".into(), AttrValue::Str("membrane".into())));
+        data.root_attrs
+            .push(("element".into(), AttrValue::Str(self.pair.name().into())));
+        data.root_attrs
+            .push(("simulated".into(), AttrValue::Str(self.simulated.join(","))));
+        data.root_attrs.push((
+            "n_dofs".into(),
+            AttrValue::I64(self.u_space.n_dofs() as i64),
+        ));
+        data.root_attrs.push((
+            "n_free_dofs".into(),
+            AttrValue::I64(self.numbering.n_free() as i64),
+        ));
+        data.root_attrs
+            .push(("h".into(), AttrValue::F64(self.mesh.h_max())));
+        if scene.output.errors {
+            if let Some(e) = self.exact_errors(scene, problem, report) {
+                for (name, v) in [
+                    ("error_l2_u", e.l2),
+                    ("error_h1_u", e.h1),
+                    ("error_l2_lambda", e.lambda_l2),
+                    ("contact_radius", e.contact_radius),
+                    ("exact_contact_radius", e.exact_contact_radius),
+                ] {
+                    data.root_attrs.push((name.into(), AttrValue::F64(v)));
+                }
+            }
+        }
+        data
+    }
+}
+
+fn vertex_field(name: &str, values: Vec<f64>) -> Field {
+    Field {
+        name: name.into(),
+        values,
+        components: 1,
+        location: Location::Vertex,
+    }
+}
+
+/// Physical tags of the boundary parts the scene names (None: all).
+pub fn dirichlet_tags(mesh: &Mesh, scene: &Scene) -> Result<Option<Vec<i32>>> {
+    let Some(names) = &scene.mesh.dirichlet else {
+        return Ok(None);
+    };
+    names
+        .iter()
+        .map(|name| {
+            mesh.tag_by_name(name).ok_or_else(|| Error::Scene {
+                file: scene.source.clone(),
+                field: "mesh.dirichlet".into(),
+                reason: format!(
+                    "the mesh {} has no boundary part named `{name}` (it has: {})",
+                    mesh.source.display(),
+                    mesh.physical_names
+                        .values()
+                        .cloned()
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+        })
+        .collect::<Result<Vec<_>>>()
+        .map(Some)
+}

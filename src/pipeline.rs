@@ -1,0 +1,224 @@
+//! One run of a scene, end to end: mesh (gmsh or a file) → model setup →
+//! assembly → factorisation → solver → result file. Each step is visible here.
+
+use crate::error::{Error, Result};
+use crate::gmsh::run_gmsh;
+use crate::linalg::factorize_checked;
+use crate::mesh::Mesh;
+use crate::models::membrane::{ExactErrors, MembraneSystem};
+use crate::output::{write_result, AttrValue, ResultData};
+use crate::scene::{Alpha, Scene, StepForm};
+use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
+use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
+use crate::solvers::{KktMeasures, SolveReport};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What a run reports besides its result file (one row of a study table).
+#[derive(Debug, Clone)]
+pub struct RunSummary {
+    pub scene: String,
+    pub element: String,
+    pub h: f64,
+    pub n_vertices: usize,
+    pub n_triangles: usize,
+    pub n_dofs: usize,
+    pub algorithm: String,
+    pub iterations: usize,
+    pub converged: bool,
+    pub stop_reason: String,
+    /// ‖λ^k − λ^{k−1}‖ of the last iteration (the thesis criterion).
+    pub last_dual_step: f64,
+    pub measures: KktMeasures,
+    pub alpha: Option<f64>,
+    pub spectrum: Option<SpectrumEstimate>,
+    pub errors: Option<ExactErrors>,
+    pub wall_seconds: f64,
+    pub result_file: PathBuf,
+}
+
+/// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
+/// (writing `msh_path`).
+pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
+    if let Some(file) = &scene.mesh.file {
+        return Mesh::read_msh(&scene.resolve(file));
+    }
+    let geo = scene.resolve(scene.mesh.geo.as_deref().expect("validated: geo or file"));
+    let params: Vec<(String, f64)> = match (scene.mesh.n, scene.mesh.h) {
+        (Some(n), _) => vec![("n".into(), n as f64)],
+        (None, Some(h)) => vec![("n".into(), 0.0), ("h".into(), h)],
+        (None, None) => unreachable!("validated: n or h"),
+    };
+    run_gmsh(&geo, msh_path, &params)?;
+    Mesh::read_msh(msh_path)
+}
+
+/// The dual step: the scene's number, or "auto" from a Lanczos estimate of
+/// the spectrum of S: 2/(s_max + s_min), the optimal fixed Richardson step,
+/// capped at 95% of the stability bound 2/s_max.
+fn choose_alpha(alpha: Alpha, spectrum: Option<SpectrumEstimate>) -> f64 {
+    match (alpha, spectrum) {
+        (Alpha::Value(a), _) => a,
+        (Alpha::Keyword(_), Some(s)) => (2.0 / (s.s_max + s.s_min)).min(1.9 / s.s_max),
+        (Alpha::Keyword(_), None) => 1.0,
+    }
+}
+
+/// Runs a scene and writes `out` (HDF5, plus the `.xdmf` and `.msh` beside it).
+pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
+    let start = Instant::now();
+    if out.extension().and_then(|e| e.to_str()) != Some("h5") {
+        return Err(Error::output(out, "the result file name must end in .h5"));
+    }
+    let dir = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir)
+        .map_err(|e| Error::output(dir, format!("cannot create the output folder: {e}")))?;
+    let mesh = scene_mesh(scene, &out.with_extension("msh"))?;
+
+    // Setup and assembly.
+    let system = MembraneSystem::setup(&mesh, scene)?;
+    let problem = system.assemble(scene)?;
+
+    // One factorisation, reused by every iteration.
+    let t = Instant::now();
+    let factorization = factorize_checked(&problem.matrix, problem.kind, "stiffness matrix")?;
+    let factor_seconds = t.elapsed().as_secs_f64();
+
+    let solver = &scene.solver;
+    let (report, alpha, spectrum): (SolveReport, Option<f64>, Option<SpectrumEstimate>) =
+        match &problem.constraint {
+            None => (
+                solve_linear(&problem, &factorization, factor_seconds)?,
+                None,
+                None,
+            ),
+            Some(_) => {
+                let step_form = solver.step_form.unwrap_or(StepForm::Mean);
+                let spectrum = estimate_dual_spectrum(&problem, &factorization, step_form, 50);
+                let alpha =
+                    choose_alpha(solver.alpha.expect("validated with an obstacle"), spectrum);
+                let options = UzawaOptions {
+                    alpha,
+                    step_form,
+                    max_iter: solver.max_iter as usize,
+                    tol: solver.tol,
+                    stop: solver.stop,
+                    thesis_tol: solver.thesis_tol,
+                    dual_norm: solver.dual_norm,
+                    show_progress,
+                };
+                (
+                    uzawa(&problem, &factorization, factor_seconds, &options, &[])?,
+                    Some(alpha),
+                    spectrum,
+                )
+            }
+        };
+
+    let mut data = system.results(scene, &problem, &report);
+    let errors = if scene.output.errors {
+        system.exact_errors(scene, &problem, &report)
+    } else {
+        None
+    };
+    record_solver(&mut data, scene, &report, spectrum);
+    write_result(out, &mesh, &data)?;
+    Ok(RunSummary {
+        scene: scene.name.clone(),
+        element: scene.element.name().into(),
+        h: mesh.h_max(),
+        n_vertices: mesh.n_vertices(),
+        n_triangles: mesh.n_triangles(),
+        n_dofs: system.u_space.n_dofs(),
+        algorithm: report.algorithm.clone(),
+        iterations: report.iterations,
+        converged: report.converged,
+        stop_reason: report.stop_reason.clone(),
+        last_dual_step: report
+            .history
+            .column("dual_step")
+            .and_then(|c| c.last().copied())
+            .unwrap_or(0.0),
+        measures: report.measures,
+        alpha,
+        spectrum,
+        errors,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        result_file: out.to_path_buf(),
+    })
+}
+
+/// The `/solver` attributes and history of SPEC §5.
+fn record_solver(
+    data: &mut ResultData,
+    scene: &Scene,
+    report: &SolveReport,
+    spectrum: Option<SpectrumEstimate>,
+) {
+    let m = &report.measures;
+    let s = &scene.solver;
+    let mut attrs: Vec<(String, AttrValue)> = vec![
+        ("algorithm".into(), AttrValue::Str(report.algorithm.clone())),
+        (
+            "iterations".into(),
+            AttrValue::I64(report.iterations as i64),
+        ),
+        ("converged".into(), AttrValue::Bool(report.converged)),
+        (
+            "stop_reason".into(),
+            AttrValue::Str(report.stop_reason.clone()),
+        ),
+        ("penetration".into(), AttrValue::F64(m.penetration)),
+        ("dual_min".into(), AttrValue::F64(m.dual_min)),
+        ("complementarity".into(), AttrValue::F64(m.complementarity)),
+        ("stationarity".into(), AttrValue::F64(m.stationarity)),
+        ("tangency".into(), AttrValue::F64(m.tangency)),
+        ("kkt".into(), AttrValue::F64(m.kkt)),
+        ("active".into(), AttrValue::I64(m.active as i64)),
+        (
+            "dual_step".into(),
+            AttrValue::F64(
+                report
+                    .history
+                    .column("dual_step")
+                    .and_then(|c| c.last().copied())
+                    .unwrap_or(0.0),
+            ),
+        ),
+        ("wall_seconds".into(), AttrValue::F64(report.wall_seconds)),
+        (
+            "factor_seconds".into(),
+            AttrValue::F64(report.factor_seconds),
+        ),
+        ("tol".into(), AttrValue::F64(s.tol)),
+        ("thesis_tol".into(), AttrValue::F64(s.thesis_tol)),
+        ("max_iter".into(), AttrValue::I64(s.max_iter)),
+        (
+            "stop".into(),
+            AttrValue::Str(format!("{:?}", s.stop).to_lowercase()),
+        ),
+        (
+            "dual_norm".into(),
+            AttrValue::Str(format!("{:?}", s.dual_norm).to_lowercase()),
+        ),
+    ];
+    if let Some(f) = s.step_form {
+        attrs.push((
+            "step_form".into(),
+            AttrValue::Str(format!("{f:?}").to_lowercase()),
+        ));
+    }
+    for (name, v) in &report.parameters {
+        attrs.push((name.clone(), AttrValue::F64(*v)));
+    }
+    if let Some(sp) = spectrum {
+        attrs.push(("s_max_estimate".into(), AttrValue::F64(sp.s_max)));
+        attrs.push(("s_min_ritz".into(), AttrValue::F64(sp.s_min)));
+        attrs.push(("stability_bound".into(), AttrValue::F64(2.0 / sp.s_max)));
+    }
+    data.solver_attrs = attrs;
+    data.history = report.history.columns.clone();
+}

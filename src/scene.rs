@@ -1,0 +1,470 @@
+//! The scene: the one input of a run. A TOML file declares the domain and
+//! mesh, the model, the elements, the data (load, obstacle), the solver and
+//! the outputs; the solver assembles and runs only what it declares.
+//!
+//! Unknown keys are rejected; every value is range-checked; every error names
+//! the file, the field (dotted path) and the reason. Any key can be
+//! overridden from the command line (`--set solver.alpha=0.9`).
+
+use crate::error::{Error, Result};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// A short name, used for default output names.
+    pub name: String,
+    pub model: Model,
+    /// The element pair (primal – multiplier).
+    pub element: ElementPair,
+    pub mesh: MeshSpec,
+    pub load: Option<LoadSpec>,
+    /// No `[obstacle]` table: no contact, one linear solve.
+    pub obstacle: Option<ObstacleSpec>,
+    pub solver: SolverSpec,
+    #[serde(default)]
+    pub output: OutputSpec,
+    /// The scene file (for messages and relative paths).
+    #[serde(skip)]
+    pub source: PathBuf,
+    /// The scene as run (file text with the overrides applied), stored in results.
+    #[serde(skip)]
+    pub text: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Model {
+    /// −Δu = g, u = 0 on the boundary, u ≥ φ (SPEC §1).
+    Membrane,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum ElementPair {
+    /// P1⊕B3 for u, P0 for λ (constraint on triangle means).
+    #[serde(rename = "p1b-p0")]
+    P1bP0,
+    /// P2 for u, P1 for λ (constraint tested with P1 hats).
+    #[serde(rename = "p2-p1")]
+    P2P1,
+}
+
+impl ElementPair {
+    pub fn name(self) -> &'static str {
+        match self {
+            ElementPair::P1bP0 => "p1b-p0",
+            ElementPair::P2P1 => "p2-p1",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSpec {
+    /// gmsh geometry, relative to the scene file's folder (e.g. "../../meshes/disk.geo").
+    pub geo: Option<String>,
+    /// Structured subdivisions (disk: points per quarter circle; diamond: per side).
+    pub n: Option<i64>,
+    /// Unstructured target size (used when `n` is absent).
+    pub h: Option<f64>,
+    /// An existing MSH 2.2 file (relative to the scene file's folder) instead of meshing.
+    pub file: Option<String>,
+    /// Physical names of the boundary parts where the Dirichlet condition holds
+    /// (default: the whole boundary).
+    pub dirichlet: Option<Vec<String>>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadSpec {
+    /// Constant source term g of −Δu = g (membrane).
+    pub g: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleSpec {
+    pub shape: ObstacleShape,
+    /// φ(0, 0).
+    pub height: f64,
+    /// k in φ = height − k (x² + y²).
+    #[serde(default)]
+    pub curvature: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ObstacleShape {
+    /// φ(x, y) = height − curvature · (x² + y²).
+    Paraboloid,
+}
+
+impl ObstacleSpec {
+    pub fn value(&self, x: [f64; 2]) -> f64 {
+        match self.shape {
+            ObstacleShape::Paraboloid => self.height - self.curvature * (x[0] * x[0] + x[1] * x[1]),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    pub method: Method,
+    /// Dual step: a positive number, or "auto" (Lanczos estimate of s_max).
+    #[serde(default)]
+    pub alpha: Option<Alpha>,
+    #[serde(default)]
+    pub step_form: Option<StepForm>,
+    #[serde(default = "default_max_iter")]
+    pub max_iter: i64,
+    /// Tolerance on the relative KKT measures (SPEC §4).
+    #[serde(default = "default_tol")]
+    pub tol: f64,
+    /// Which criterion stops the iteration; both are always recorded.
+    #[serde(default)]
+    pub stop: StopRule,
+    /// The thesis criterion ‖λ^{k+1} − λ^k‖ < thesis_tol.
+    #[serde(default = "default_thesis_tol")]
+    pub thesis_tol: f64,
+    /// The norm of the thesis criterion.
+    #[serde(default)]
+    pub dual_norm: DualNorm,
+}
+
+fn default_max_iter() -> i64 {
+    100_000
+}
+fn default_tol() -> f64 {
+    1e-8
+}
+fn default_thesis_tol() -> f64 {
+    1e-5
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// The thesis' Uzawa iteration (Algorithm 1, SPEC §3).
+    Uzawa,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Alpha {
+    Value(f64),
+    Keyword(AlphaKeyword),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AlphaKeyword {
+    Auto,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StepForm {
+    /// λ_T ← max(0, λ_T − α ḡ_T): the L² Riesz map of the multiplier space.
+    Mean,
+    /// λ_T ← max(0, λ_T − α |T| ḡ_T): the Euclidean step on coefficients.
+    Integral,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum StopRule {
+    /// Stop when the relative KKT measures are below `tol`.
+    #[default]
+    Kkt,
+    /// Stop on the thesis criterion ‖λ^{k+1} − λ^k‖ < thesis_tol.
+    Thesis,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum DualNorm {
+    /// L²(Ω) norm of the multiplier function.
+    #[default]
+    L2,
+    /// Max norm of the coefficients.
+    Inf,
+}
+
+#[derive(Debug, Clone, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// Compute errors against the exact solution (disk with a paraboloid obstacle).
+    #[serde(default)]
+    pub errors: bool,
+}
+
+impl Scene {
+    /// Reads a scene file, applies `--set key=value` overrides, validates.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::Scene {
+            file: path.to_path_buf(),
+            field: "(file)".into(),
+            reason: format!("cannot read: {e}"),
+        })?;
+        Scene::from_text(&text, path, overrides)
+    }
+
+    /// Parses scene text (`path` is used for messages and relative paths).
+    pub fn from_text(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
+        let err = |field: &str, reason: String| Error::Scene {
+            file: path.to_path_buf(),
+            field: field.to_string(),
+            reason,
+        };
+        let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
+            err("(syntax)", e.to_string().trim().replace('\n', " "))
+        })?;
+        for o in overrides {
+            apply_override(&mut table, o).map_err(|(field, reason)| err(&field, reason))?;
+        }
+        let value = toml::Value::Table(table.clone());
+        let mut scene: Scene = serde_path_to_error::deserialize(value).map_err(|e| {
+            let field = e.path().to_string();
+            err(
+                if field == "." { "(top level)" } else { &field },
+                e.into_inner().to_string(),
+            )
+        })?;
+        scene.source = path.to_path_buf();
+        scene.text = if overrides.is_empty() {
+            text.to_string()
+        } else {
+            format!(
+                "# overrides: {}\n{}",
+                overrides.join(" "),
+                toml::to_string(&table).unwrap_or_else(|_| text.to_string())
+            )
+        };
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    fn error(&self, field: &str, reason: impl Into<String>) -> Error {
+        Error::Scene {
+            file: self.source.clone(),
+            field: field.to_string(),
+            reason: reason.into(),
+        }
+    }
+
+    /// Range checks that the types cannot express.
+    fn validate(&self) -> Result<()> {
+        let finite = |field: &str, v: f64| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(self.error(field, format!("must be a finite number, got {v}")))
+            }
+        };
+        let positive = |field: &str, v: f64| {
+            finite(field, v)?;
+            if v > 0.0 {
+                Ok(())
+            } else {
+                Err(self.error(field, format!("must be > 0, got {v}")))
+            }
+        };
+        if self.name.trim().is_empty() || self.name.contains('/') {
+            return Err(self.error("name", "must be non-empty and contain no '/'"));
+        }
+        let m = &self.mesh;
+        match (&m.file, &m.geo) {
+            (Some(_), Some(_)) => {
+                return Err(self.error("mesh", "give either `file` or `geo`, not both"))
+            }
+            (None, None) => {
+                return Err(self.error(
+                    "mesh",
+                    "give `geo` (a gmsh .geo to mesh) or `file` (an MSH 2.2 mesh)",
+                ))
+            }
+            (None, Some(_)) => {
+                if m.n.is_none() && m.h.is_none() {
+                    return Err(self.error(
+                        "mesh",
+                        "meshing a .geo needs `n` (structured) or `h` (target size)",
+                    ));
+                }
+            }
+            (Some(_), None) => {}
+        }
+        if let Some(n) = m.n {
+            if !(1..=100_000).contains(&n) {
+                return Err(self.error("mesh.n", format!("must be between 1 and 100000, got {n}")));
+            }
+        }
+        if let Some(h) = m.h {
+            positive("mesh.h", h)?;
+        }
+        if let Some(load) = &self.load {
+            finite("load.g", load.g)?;
+        }
+        if self.model == Model::Membrane && self.load.is_none() {
+            return Err(self.error("load", "the membrane model needs `[load] g = ...`"));
+        }
+        if let Some(o) = &self.obstacle {
+            finite("obstacle.height", o.height)?;
+            finite("obstacle.curvature", o.curvature)?;
+        }
+        let s = &self.solver;
+        if let Some(Alpha::Value(a)) = s.alpha {
+            positive("solver.alpha", a)?;
+        }
+        if self.obstacle.is_some() {
+            if s.alpha.is_none() {
+                return Err(self.error(
+                    "solver.alpha",
+                    "Uzawa needs a step: a number > 0 or \"auto\"",
+                ));
+            }
+            if s.step_form.is_none() {
+                return Err(self.error(
+                    "solver.step_form",
+                    "name the dual step form: \"mean\" or \"integral\" (SPEC §3)",
+                ));
+            }
+        }
+        if !(1..=100_000_000).contains(&s.max_iter) {
+            return Err(self.error(
+                "solver.max_iter",
+                format!("must be between 1 and 1e8, got {}", s.max_iter),
+            ));
+        }
+        positive("solver.tol", s.tol)?;
+        positive("solver.thesis_tol", s.thesis_tol)?;
+        Ok(())
+    }
+
+    /// A path of the scene, relative to the scene file's folder.
+    pub fn resolve(&self, relative: &str) -> PathBuf {
+        let p = Path::new(relative);
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.source.parent().unwrap_or(Path::new(".")).join(p)
+        }
+    }
+}
+
+/// Applies `a.b.c=value` to a TOML table. The value is parsed as TOML
+/// (numbers, booleans, arrays, quoted strings); a bare word is taken as a string.
+fn apply_override(
+    table: &mut toml::Table,
+    assignment: &str,
+) -> std::result::Result<(), (String, String)> {
+    let (key, raw) = assignment.split_once('=').ok_or_else(|| {
+        (
+            assignment.to_string(),
+            "an override is KEY=VALUE, e.g. solver.alpha=0.9".to_string(),
+        )
+    })?;
+    let key = key.trim();
+    let raw = raw.trim();
+    let parts: Vec<&str> = key.split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err((key.to_string(), "empty key segment in override".into()));
+    }
+    let value = match format!("v = {raw}").parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").expect("parsed one key"),
+        Err(_) => toml::Value::String(raw.to_string()),
+    };
+    let mut node = table;
+    for (i, part) in parts.iter().enumerate() {
+        if i + 1 == parts.len() {
+            node.insert(part.to_string(), value);
+            return Ok(());
+        }
+        let entry = node
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        node = match entry {
+            toml::Value::Table(t) => t,
+            _ => {
+                return Err((
+                    parts[..=i].join("."),
+                    "is not a table, cannot set a key inside it".into(),
+                ))
+            }
+        };
+    }
+    unreachable!("the loop returns at the last segment")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DISK: &str = r#"
+name = "t"
+model = "membrane"
+element = "p1b-p0"
+[mesh]
+geo = "disk.geo"
+n = 8
+[load]
+g = -4.0
+[obstacle]
+shape = "paraboloid"
+height = 0.3
+curvature = 1.0
+[solver]
+method = "uzawa"
+alpha = 11.0
+step_form = "mean"
+"#;
+
+    fn parse(extra: &[&str]) -> Result<Scene> {
+        let o: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+        Scene::from_text(DISK, Path::new("s.toml"), &o)
+    }
+
+    fn message(r: Result<Scene>) -> String {
+        r.expect_err("should be rejected").to_string()
+    }
+
+    #[test]
+    fn parses_and_overrides() {
+        let s = parse(&[
+            "mesh.n=32",
+            "solver.alpha=0.9",
+            "element=p2-p1",
+            "solver.alpha=\"auto\"",
+        ])
+        .unwrap();
+        assert_eq!(s.mesh.n, Some(32));
+        assert_eq!(s.element, ElementPair::P2P1);
+        assert_eq!(s.solver.alpha, Some(Alpha::Keyword(AlphaKeyword::Auto)));
+        assert!(s.text.contains("overrides"));
+        assert_eq!(s.solver.tol, 1e-8);
+    }
+
+    #[test]
+    fn errors_name_file_field_and_reason() {
+        let m = message(parse(&["solver.alpah=1"]));
+        assert!(
+            m.contains("s.toml") && m.contains("solver") && m.contains("alpah"),
+            "{m}"
+        );
+        let m = message(parse(&["solver.alpha=-1"]));
+        assert!(m.contains("solver.alpha") && m.contains("> 0"), "{m}");
+        let m = message(parse(&["solver.alpha=nan"]));
+        assert!(m.contains("solver.alpha") && m.contains("finite"), "{m}");
+        let m = message(parse(&["element=p3"]));
+        assert!(m.contains("element") && m.contains("p3"), "{m}");
+        let m = message(parse(&["mesh.n=0"]));
+        assert!(m.contains("mesh.n"), "{m}");
+        let m = message(parse(&["solver.tol=inf"]));
+        assert!(m.contains("solver.tol"), "{m}");
+        let m = message(parse(&["mesh"]));
+        assert!(m.contains("KEY=VALUE"), "{m}");
+        let m = message(Scene::from_text("name = [", Path::new("bad.toml"), &[]));
+        assert!(m.contains("bad.toml") && m.contains("syntax"), "{m}");
+    }
+}

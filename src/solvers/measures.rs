@@ -1,0 +1,133 @@
+//! The measures every solver reports (SPEC §4), and the per-iteration history.
+
+use super::ContactProblem;
+use crate::assembly::{mat_t_vec, mat_vec, norm2, norm_inf};
+use crate::scene::DualNorm;
+
+/// KKT measures of an iterate (x, λ). Absolute values, and the relative
+/// ones that the tolerance applies to.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct KktMeasures {
+    /// max_i max(0, −ḡ_i).
+    pub penetration: f64,
+    /// min_i λ_i (≥ 0 by construction of the projected methods).
+    pub dual_min: f64,
+    /// max_i |λ_i ḡ_i|.
+    pub complementarity: f64,
+    /// ‖A x − F − Cᵀλ‖ over the primal rows, relative to ‖F‖.
+    pub stationarity: f64,
+    /// ‖(A x − F)‖ over the equality-multiplier rows (‖B U‖), absolute.
+    pub tangency: f64,
+    /// Number of multipliers with λ_i > 0.
+    pub active: usize,
+    /// The scale of gaps: max(‖ḡ(0)‖∞ = ‖g_i/w_i‖∞, ‖x_primal‖∞).
+    pub gap_scale: f64,
+    /// The largest relative measure: penetration/gap_scale,
+    /// max(0, −dual_min)/‖λ‖∞, complementarity/(‖λ‖∞ gap_scale),
+    /// stationarity, tangency/(‖F‖ + ‖x‖). This is what `tol` bounds.
+    pub kkt: f64,
+}
+
+/// Computes the measures of (x, λ) for a problem.
+pub fn kkt_measures(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> KktMeasures {
+    let n_primal = problem.n_primal;
+    let mut r = mat_vec(&problem.matrix, x);
+    for (ri, fi) in r.iter_mut().zip(&problem.rhs) {
+        *ri -= fi;
+    }
+    let mut m = KktMeasures::default();
+    let x_scale = norm_inf(&x[..n_primal]);
+    let f_norm = norm2(&problem.rhs[..n_primal]).max(f64::MIN_POSITIVE);
+    if let Some(c) = &problem.constraint {
+        let ct_lambda = mat_t_vec(&c.matrix, lambda);
+        for (ri, ci) in r.iter_mut().zip(&ct_lambda) {
+            *ri -= ci;
+        }
+        let cx = mat_vec(&c.matrix, x);
+        let obstacle_scale = c
+            .obstacle
+            .iter()
+            .zip(&c.weights)
+            .fold(0.0f64, |s, (g, w)| s.max((g / w).abs()));
+        m.gap_scale = obstacle_scale.max(x_scale).max(f64::MIN_POSITIVE);
+        let lambda_scale = norm_inf(lambda).max(f64::MIN_POSITIVE);
+        m.dual_min = f64::INFINITY;
+        for i in 0..lambda.len() {
+            let gap = (cx[i] - c.obstacle[i]) / c.weights[i];
+            m.penetration = m.penetration.max(-gap);
+            m.complementarity = m.complementarity.max((lambda[i] * gap).abs());
+            m.dual_min = m.dual_min.min(lambda[i]);
+            if lambda[i] > 0.0 {
+                m.active += 1;
+            }
+        }
+        if lambda.is_empty() {
+            m.dual_min = 0.0;
+        }
+        m.kkt = (m.penetration / m.gap_scale)
+            .max((-m.dual_min).max(0.0) / lambda_scale)
+            .max(m.complementarity / (lambda_scale * m.gap_scale));
+    } else {
+        m.gap_scale = x_scale;
+    }
+    m.stationarity = norm2(&r[..n_primal]) / f_norm;
+    m.tangency = norm2(&r[n_primal..]);
+    let tangency_rel = m.tangency / (f_norm + norm2(x));
+    m.kkt = m.kkt.max(m.stationarity).max(tangency_rel);
+    m
+}
+
+/// ‖λ^{k+1} − λ^k‖ in the chosen norm (L²: Σ w_i Δλ_i², the L²(Ω) norm of the
+/// multiplier function through its Riesz weights).
+pub fn dual_step_norm(new: &[f64], old: &[f64], weights: &[f64], norm: DualNorm) -> f64 {
+    match norm {
+        DualNorm::Inf => new
+            .iter()
+            .zip(old)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs())),
+        DualNorm::L2 => new
+            .iter()
+            .zip(old)
+            .zip(weights)
+            .map(|((a, b), w)| w * (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt(),
+    }
+}
+
+/// Per-iteration measures, as named columns (written to `/solver/history`).
+#[derive(Debug, Clone, Default)]
+pub struct History {
+    pub columns: Vec<(String, Vec<f64>)>,
+}
+
+impl History {
+    pub fn with_columns(names: &[&str]) -> Self {
+        History {
+            columns: names.iter().map(|n| (n.to_string(), Vec::new())).collect(),
+        }
+    }
+
+    /// Appends one row; `values` in column order.
+    pub fn push(&mut self, values: &[f64]) {
+        debug_assert_eq!(values.len(), self.columns.len());
+        for ((_, col), v) in self.columns.iter_mut().zip(values) {
+            col.push(*v);
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.columns.first().map_or(0, |(_, c)| c.len())
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn column(&self, name: &str) -> Option<&[f64]> {
+        self.columns
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, c)| c.as_slice())
+    }
+}

@@ -1,0 +1,75 @@
+//! Solvers for algebraic contact problems. They know nothing about
+//! membranes or shells: a model hands them a [`ContactProblem`].
+//!
+//! The problem is: find x (primal unknowns, possibly followed by equality
+//! multipliers such as the shell's tangency ψ) and λ ≥ 0 with
+//!
+//! ```text
+//!     A x = F + Cᵀ λ,     C x − g ≥ 0,     λ ≥ 0,     λ_i (C x − g)_i = 0,
+//! ```
+//!
+//! where A is factorised once. Row i of C tests the constraint with the i-th
+//! multiplier basis function; `weights` are the diagonal Riesz map of the
+//! multiplier space (|T| for P0, lumped mass for P1), so that the *mean gap*
+//! ḡ_i = (C x − g)_i / w_i is the constraint in the units of the unknown.
+
+pub mod measures;
+pub mod spectrum;
+pub mod uzawa;
+
+use crate::linalg::MatrixKind;
+use faer::sparse::SparseColMat;
+
+pub use measures::{History, KktMeasures};
+
+/// The inequality constraint C x ≥ g with its multiplier space.
+pub struct Constraint {
+    /// m × n, one row per multiplier dof.
+    pub matrix: SparseColMat<usize, f64>,
+    /// g, length m.
+    pub obstacle: Vec<f64>,
+    /// Diagonal Riesz map of the multiplier space, length m, all > 0.
+    pub weights: Vec<f64>,
+}
+
+/// An algebraic contact problem (see the module documentation).
+pub struct ContactProblem {
+    /// The n × n system matrix A (stiffness, or a saddle-point matrix).
+    pub matrix: SparseColMat<usize, f64>,
+    pub kind: MatrixKind,
+    /// F, length n.
+    pub rhs: Vec<f64>,
+    /// Unknowns [0, n_primal) are primal; the rest are equality multipliers,
+    /// whose rows of A x − F are reported as the tangency measure.
+    pub n_primal: usize,
+    /// None: no obstacle, the problem is one linear solve.
+    pub constraint: Option<Constraint>,
+}
+
+impl ContactProblem {
+    pub fn n(&self) -> usize {
+        self.rhs.len()
+    }
+    pub fn n_multipliers(&self) -> usize {
+        self.constraint.as_ref().map_or(0, |c| c.obstacle.len())
+    }
+}
+
+/// What a solver returns: the last iterate and how it got there.
+#[derive(Debug, Clone)]
+pub struct SolveReport {
+    pub algorithm: String,
+    pub x: Vec<f64>,
+    pub lambda: Vec<f64>,
+    pub iterations: usize,
+    /// True only when the relative KKT measures are below the tolerance.
+    pub converged: bool,
+    /// "kkt", "thesis", "max_iter" or "linear" (no constraint: one solve).
+    pub stop_reason: String,
+    pub measures: KktMeasures,
+    pub history: History,
+    pub factor_seconds: f64,
+    pub wall_seconds: f64,
+    /// Named scalar parameters and estimates (alpha, s_max, ...).
+    pub parameters: Vec<(String, f64)>,
+}
