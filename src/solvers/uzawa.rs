@@ -104,7 +104,7 @@ pub fn uzawa(
     let mut x = vec![0.0; problem.n()];
     let mut measures = Default::default();
     let mut stop_reason = "max_iter";
-    let mut min_step = f64::INFINITY;
+    let mut divergence = DivergenceMonitor::default();
     let mut progress = IterationProgress::new(
         "Uzawa",
         options.max_iter,
@@ -147,9 +147,7 @@ pub fn uzawa(
         history.push(&row);
         progress.update(k, measures.kkt, step);
 
-        // Divergence: the step grows far above its smallest value, well above round-off.
-        min_step = min_step.min(step);
-        if k >= 10 && step > 1e4 * min_step && step > 1e-8 * norm_inf(&lambda) {
+        if let Some(reason) = divergence.check(k, step, measures.kkt, norm_inf(&lambda)) {
             progress.finish();
             let bound = estimate_dual_spectrum(problem, factorization, options.step_form, 40)
                 .map(|s| {
@@ -163,8 +161,8 @@ pub fn uzawa(
                 "Uzawa",
                 "dual step ‖λ^k − λ^{k−1}‖",
                 format!(
-                    "diverged at iteration {k}: the step grew from {min_step:.3e} to {step:.3e}; α = {} is too large{bound}",
-                    options.alpha
+                    "diverged at iteration {k}: {reason} (KKT measure {:.3e}); α = {} is too large{bound}",
+                    measures.kkt, options.alpha
                 ),
             ));
         }
@@ -194,6 +192,60 @@ pub fn uzawa(
         wall_seconds: factor_seconds + start.elapsed().as_secs_f64(),
         parameters: vec![("alpha".into(), options.alpha)],
     })
+}
+
+/// Detects the two ways a fixed-step projected iteration fails when α is
+/// above the stability bound: geometric growth of the step, or, when the
+/// projection onto λ ≥ 0 clips that growth, a bounded cycle in which neither
+/// the step nor the KKT measure decreases any more.
+#[derive(Default)]
+struct DivergenceMonitor {
+    min_step: f64,
+    log_steps: Vec<f64>,
+    log_kkt: Vec<f64>,
+}
+
+/// Window (iterations) over which a cycle is judged.
+const CYCLE_WINDOW: usize = 50;
+
+impl DivergenceMonitor {
+    fn check(&mut self, k: usize, step: f64, kkt: f64, lambda_max: f64) -> Option<String> {
+        if k == 1 {
+            self.min_step = f64::INFINITY;
+        }
+        self.min_step = self.min_step.min(step);
+        // Well above round-off: a converged iteration stagnating at machine
+        // precision must not look like a cycle.
+        let significant = step > 1e-10 * lambda_max;
+        if k >= 10 && significant && step > 1e4 * self.min_step {
+            return Some(format!(
+                "the step grew from {:.3e} to {step:.3e}",
+                self.min_step
+            ));
+        }
+        self.log_steps.push(step.max(f64::MIN_POSITIVE).ln());
+        self.log_kkt.push(kkt.max(f64::MIN_POSITIVE).ln());
+        let n = self.log_steps.len();
+        if n < 2 * CYCLE_WINDOW || !significant {
+            return None;
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let window = |v: &[f64]| {
+            (
+                mean(&v[n - 2 * CYCLE_WINDOW..n - CYCLE_WINDOW]),
+                mean(&v[n - CYCLE_WINDOW..]),
+            )
+        };
+        let ((s0, s1), (k0, k1)) = (window(&self.log_steps), window(&self.log_kkt));
+        // Any real convergence, however slow, lowers both means.
+        (s1 - s0 > -1e-9 && k1 - k0 > -1e-9).then(|| {
+            format!(
+                "the iteration cycles without converging: over the last {} iterations neither the step ({:.3e}) nor the KKT measure decreased",
+                2 * CYCLE_WINDOW,
+                step
+            )
+        })
+    }
 }
 
 fn check_finite(stage: &str, iteration: usize, what: &str, v: &[f64]) -> Result<()> {
