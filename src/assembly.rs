@@ -68,6 +68,23 @@ impl Tabulation {
     }
 }
 
+/// The quadrature points of triangle t (geometry g) for a rule.
+pub fn quad_points<'a>(
+    g: &'a TriangleGeometry,
+    t: usize,
+    rule: &'a TriangleRule,
+) -> impl Iterator<Item = QuadPoint> + 'a {
+    rule.points
+        .iter()
+        .zip(&rule.weights)
+        .map(move |(&lambda, &w)| QuadPoint {
+            triangle: t,
+            lambda,
+            x: g.point(lambda),
+            weight: w * g.area,
+        })
+}
+
 /// Coordinate-format matrix entries (duplicates are summed on conversion).
 #[derive(Debug, Clone, Default)]
 pub struct Triplets {
@@ -85,37 +102,20 @@ impl Triplets {
         }
     }
 
-    /// Adds `other` with its rows shifted by `row_offset` and columns by `col_offset`
-    /// (to build block matrices).
+    /// Adds `other` (or its transpose) with rows shifted by `row_offset` and
+    /// columns by `col_offset`, scaled: to build block matrices.
     pub fn add_block(
         &mut self,
         other: &Triplets,
         row_offset: usize,
         col_offset: usize,
         scale: f64,
+        transpose: bool,
     ) {
-        self.entries.extend(
-            other
-                .entries
-                .iter()
-                .map(|&(r, c, v)| (r + row_offset, c + col_offset, scale * v)),
-        );
-    }
-
-    /// Adds the transpose of `other`, shifted.
-    pub fn add_block_transposed(
-        &mut self,
-        other: &Triplets,
-        row_offset: usize,
-        col_offset: usize,
-        scale: f64,
-    ) {
-        self.entries.extend(
-            other
-                .entries
-                .iter()
-                .map(|&(r, c, v)| (c + row_offset, r + col_offset, scale * v)),
-        );
+        self.entries.extend(other.entries.iter().map(|&(r, c, v)| {
+            let (r, c) = if transpose { (c, r) } else { (r, c) };
+            (r + row_offset, c + col_offset, scale * v)
+        }));
     }
 
     pub fn to_sparse(&self) -> SparseColMat<usize, f64> {
@@ -148,13 +148,7 @@ pub fn assemble_bilinear(
     for t in 0..mesh.n_triangles() {
         let g = TriangleGeometry::new(mesh, t);
         local.iter_mut().for_each(|row| row.fill(0.0));
-        for (q, (&lambda, &w)) in rule.points.iter().zip(&rule.weights).enumerate() {
-            let p = QuadPoint {
-                triangle: t,
-                lambda,
-                x: g.point(lambda),
-                weight: w * g.area,
-            };
+        for (q, p) in quad_points(&g, t, rule).enumerate() {
             let (su, sv) = (tab_u.shapes(&g, q), tab_v.shapes(&g, q));
             for i in 0..nv {
                 for j in 0..nu {
@@ -186,13 +180,7 @@ pub fn assemble_linear(
     for t in 0..mesh.n_triangles() {
         let g = TriangleGeometry::new(mesh, t);
         let (dofs, _) = test.element_dofs(t);
-        for (q, (&lambda, &w)) in rule.points.iter().zip(&rule.weights).enumerate() {
-            let p = QuadPoint {
-                triangle: t,
-                lambda,
-                x: g.point(lambda),
-                weight: w * g.area,
-            };
+        for (q, p) in quad_points(&g, t, rule).enumerate() {
             let s = tab.shapes(&g, q);
             for i in 0..n {
                 out[dofs[i]] += p.weight * form(&s[i], &p);
@@ -218,13 +206,7 @@ pub fn integrate_per_triangle(
             let g = TriangleGeometry::new(mesh, t);
             let (dofs, _) = space.element_dofs(t);
             let mut sum = 0.0;
-            for (q, (&lambda, &w)) in rule.points.iter().zip(&rule.weights).enumerate() {
-                let p = QuadPoint {
-                    triangle: t,
-                    lambda,
-                    x: g.point(lambda),
-                    weight: w * g.area,
-                };
+            for (q, p) in quad_points(&g, t, rule).enumerate() {
                 let s = tab.shapes(&g, q);
                 let mut uh = ShapeValue::default();
                 for i in 0..n {
