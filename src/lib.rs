@@ -19,6 +19,7 @@ pub mod mesh;
 pub mod models;
 pub mod output;
 pub mod pipeline;
+pub mod plot;
 pub mod progress;
 pub mod quadrature;
 pub mod scene;

@@ -6,7 +6,7 @@ use obstacle_fem::output::{read_result, summary};
 use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
 use obstacle_fem::scene::Scene;
-use obstacle_fem::study::{csv_table, markdown_table, run_study, Study};
+use obstacle_fem::study::{csv_table, markdown_table, run_study, write_convergence_plots, Study};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -145,6 +145,11 @@ fn run(cli: Cli) -> Result<()> {
                 &out_dir.join(format!("{}.csv", spec.name)),
                 &csv_table(&rows),
             )?;
+            if spec.convergence_plot {
+                for f in write_convergence_plots(&spec, &rows, &out_dir)? {
+                    println!("plot: {}", f.display());
+                }
+            }
             Ok(())
         }
     }

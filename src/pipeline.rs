@@ -6,8 +6,9 @@ use crate::gmsh::run_gmsh;
 use crate::linalg::factorize_checked;
 use crate::mesh::Mesh;
 use crate::models::membrane::{ExactErrors, MembraneSystem};
-use crate::output::{write_result, AttrValue, ResultData};
-use crate::scene::{Alpha, Scene, StepForm};
+use crate::output::{write_result, AttrValue, Location, ResultData};
+use crate::plot;
+use crate::scene::{Alpha, PlotKind, Scene, StepForm};
 use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
 use crate::solvers::{KktMeasures, SolveReport};
@@ -126,6 +127,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     };
     record_solver(&mut data, scene, &report, spectrum);
     write_result(out, &mesh, &data)?;
+    write_plots(scene, out, &mesh, &data, &report, errors.as_ref())?;
     Ok(RunSummary {
         scene: scene.name.clone(),
         element: scene.element.name().into(),
@@ -149,6 +151,61 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         wall_seconds: start.elapsed().as_secs_f64(),
         result_file: out.to_path_buf(),
     })
+}
+
+/// The plots the scene asks for, beside the result file; nothing else is drawn.
+fn write_plots(
+    scene: &Scene,
+    out: &Path,
+    mesh: &Mesh,
+    data: &ResultData,
+    report: &SolveReport,
+    errors: Option<&ExactErrors>,
+) -> Result<()> {
+    let ext = scene.output.plot_format.extension();
+    let field = |name: &str| data.fields.iter().find(|f| f.name == name);
+    for kind in &scene.output.plots {
+        let name = format!("{kind:?}").to_lowercase();
+        let path = out.with_extension(format!("{name}.{ext}"));
+        let title = format!("{}: {name} ({})", scene.name, scene.element.name());
+        match kind {
+            PlotKind::History if !report.history.is_empty() => plot::plot_history(
+                &path,
+                &report.history,
+                &["dual_step", "penetration", "complementarity", "kkt"],
+                &title,
+            )?,
+            PlotKind::Contact => {
+                if let Some(f) = field("contact") {
+                    let active: Vec<bool> = f.values.iter().map(|&v| v > 0.0).collect();
+                    plot::plot_contact_zone(
+                        &path,
+                        mesh,
+                        &active,
+                        &title,
+                        errors.map(|e| e.exact_contact_radius),
+                    )?;
+                }
+            }
+            PlotKind::U | PlotKind::Lambda | PlotKind::Gap => {
+                let name = match kind {
+                    PlotKind::U => "u",
+                    PlotKind::Lambda => "lambda",
+                    _ => "gap_mean",
+                };
+                if let Some(f) = field(name) {
+                    match f.location {
+                        Location::Vertex => {
+                            plot::plot_vertex_field(&path, mesh, &f.values, &title)?
+                        }
+                        Location::Cell => plot::plot_cell_field(&path, mesh, &f.values, &title)?,
+                    }
+                }
+            }
+            PlotKind::History => {}
+        }
+    }
+    Ok(())
 }
 
 /// The `/solver` attributes and history of SPEC §5.

@@ -198,6 +198,44 @@ pub struct OutputSpec {
     /// Compute errors against the exact solution (disk with a paraboloid obstacle).
     #[serde(default)]
     pub errors: bool,
+    /// Plots written beside the result file (`<stem>.<plot>.<format>`), only
+    /// those listed: "u", "lambda", "gap", "contact", "history".
+    #[serde(default)]
+    pub plots: Vec<PlotKind>,
+    #[serde(default)]
+    pub plot_format: PlotFormat,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PlotKind {
+    /// Colour map and isolines of u.
+    U,
+    /// The multiplier λ.
+    Lambda,
+    /// The mean gap ḡ.
+    Gap,
+    /// The contact zone {λ > 0}, with the exact contact circle when known.
+    Contact,
+    /// Convergence history of the KKT measures and the dual step.
+    History,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum PlotFormat {
+    #[default]
+    Png,
+    Svg,
+}
+
+impl PlotFormat {
+    pub fn extension(self) -> &'static str {
+        match self {
+            PlotFormat::Png => "png",
+            PlotFormat::Svg => "svg",
+        }
+    }
 }
 
 impl Scene {

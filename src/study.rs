@@ -16,7 +16,9 @@
 //! ```
 
 use crate::error::{Error, Result};
+use crate::models::membrane::ExactErrors;
 use crate::pipeline::{run_scene, RunSummary};
+use crate::plot;
 use crate::scene::Scene;
 use serde::Deserialize;
 use std::fmt::Write as _;
@@ -31,6 +33,9 @@ pub struct Study {
     #[serde(default)]
     pub set: Vec<String>,
     pub sweep: Vec<Sweep>,
+    /// Draw errors against h (log–log), one figure per group of the outer sweeps.
+    #[serde(default)]
+    pub convergence_plot: bool,
 }
 
 #[derive(Debug, Deserialize)]
@@ -270,4 +275,54 @@ pub fn csv_table(rows: &[StudyRow]) -> String {
         );
     }
     csv
+}
+
+/// Log–log plots of the exact-solution errors against h, one per group of the
+/// outer sweeps (`<out_dir>/<study>-convergence-<k>.png`). Returns the files.
+pub fn write_convergence_plots(
+    study: &Study,
+    rows: &[StudyRow],
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let mut start = 0;
+    while start < rows.len() {
+        let outer = |r: &StudyRow| r.labels[..r.labels.len().saturating_sub(1)].to_vec();
+        let group = outer(&rows[start]);
+        let end = start
+            + rows[start..]
+                .iter()
+                .take_while(|r| outer(r) == group)
+                .count();
+        let points = |f: &dyn Fn(&ExactErrors) -> f64| -> Vec<(f64, f64)> {
+            rows[start..end]
+                .iter()
+                .filter_map(|r| r.summary.errors.as_ref().map(|e| (r.summary.h, f(e))))
+                .collect()
+        };
+        let series = vec![
+            ("L² error of u".to_string(), points(&|e| e.l2)),
+            ("H¹ error of u".to_string(), points(&|e| e.h1)),
+            (
+                "|a_h − a| contact radius".to_string(),
+                points(&|e| (e.contact_radius - e.exact_contact_radius).abs()),
+            ),
+            ("L² error of λ".to_string(), points(&|e| e.lambda_l2)),
+        ];
+        if series[0].1.len() >= 2 {
+            let label: Vec<String> = group.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            let path = out_dir.join(format!("{}-convergence-{}.png", study.name, files.len()));
+            plot::plot_convergence(
+                &path,
+                &series,
+                "h",
+                "error",
+                &format!("{} {}", study.name, label.join(", ")),
+                &[1.0, 2.0],
+            )?;
+            files.push(path);
+        }
+        start = end;
+    }
+    Ok(files)
 }

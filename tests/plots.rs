@@ -1,0 +1,412 @@
+//! Figures: every plot is written as PNG and SVG, atomically, and bad input
+//! is an error that leaves no file.
+//!
+//! Set `OBSTACLE_PLOT_DIR=/some/dir` to keep the figures for a look.
+
+use obstacle_fem::mesh::{BoundaryEdge, Mesh};
+use obstacle_fem::plot::{
+    plot_cell_field, plot_contact_zone, plot_convergence, plot_history, plot_vertex_field,
+};
+use obstacle_fem::solvers::measures::History;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// A structured triangulation of [-1, 1]² with n × n squares, each cut
+/// along a diagonal (alternating), boundary edges tagged 1.
+fn square_mesh(n: usize) -> Mesh {
+    let idx = |i: usize, j: usize| j * (n + 1) + i;
+    let mut vertices = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            vertices.push([
+                -1.0 + 2.0 * i as f64 / n as f64,
+                -1.0 + 2.0 * j as f64 / n as f64,
+            ]);
+        }
+    }
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (a, b, c, d) = (idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1));
+            if (i + j) % 2 == 0 {
+                triangles.push([a, b, c]);
+                triangles.push([a, c, d]);
+            } else {
+                triangles.push([a, b, d]);
+                triangles.push([b, c, d]);
+            }
+        }
+    }
+    let mut boundary_edges = Vec::new();
+    for k in 0..n {
+        for e in [
+            [idx(k, 0), idx(k + 1, 0)],
+            [idx(n, k), idx(n, k + 1)],
+            [idx(k + 1, n), idx(k, n)],
+            [idx(0, k + 1), idx(0, k)],
+        ] {
+            boundary_edges.push(BoundaryEdge {
+                vertices: e,
+                tag: 1,
+            });
+        }
+    }
+    Mesh::from_parts(
+        vertices,
+        triangles,
+        boundary_edges,
+        BTreeMap::new(),
+        PathBuf::new(),
+    )
+    .expect("valid square mesh")
+}
+
+/// A membrane-like field: a bump resting on a flat obstacle near the centre.
+fn field(p: [f64; 2]) -> f64 {
+    let [x, y] = p;
+    let r2 = x * x + y * y;
+    ((1.0 - x * x) * (1.0 - y * y) * (1.0 + 0.4 * x)).min(0.75 - 0.3 * r2)
+}
+
+struct Out {
+    _tmp: tempfile::TempDir,
+    dir: PathBuf,
+}
+
+fn out_dir() -> Out {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = match std::env::var_os("OBSTACLE_PLOT_DIR") {
+        Some(d) => {
+            std::fs::create_dir_all(&d).unwrap();
+            PathBuf::from(d)
+        }
+        None => tmp.path().to_path_buf(),
+    };
+    Out { _tmp: tmp, dir }
+}
+
+/// Checks a written figure: exists, non-empty, PNG signature or SVG text
+/// with the title, mode 0644.
+fn check_figure(path: &Path, title: &str) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert!(!bytes.is_empty(), "{} is empty", path.display());
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("png") => assert!(
+            bytes.starts_with(b"\x89PNG\r\n\x1a\n"),
+            "{} is not a PNG",
+            path.display()
+        ),
+        Some("svg") => {
+            let text = String::from_utf8(bytes).expect("SVG is UTF-8");
+            let start = text.trim_start();
+            assert!(
+                start.starts_with("<svg") || start.starts_with("<?xml"),
+                "{} does not start like SVG",
+                path.display()
+            );
+            assert!(
+                text.trim_end().ends_with("</svg>"),
+                "{} is cut",
+                path.display()
+            );
+            assert!(
+                text.contains(title),
+                "{} lacks its title {title:?}",
+                path.display()
+            );
+        }
+        other => panic!("unexpected extension {other:?}"),
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(path).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o644, "{} has mode {mode:o}", path.display());
+    }
+}
+
+/// No temporary files are left in `dir`.
+fn assert_no_leftovers(dir: &Path) {
+    let left: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".plot-"))
+        .collect();
+    assert!(left.is_empty(), "temporary files left: {left:?}");
+}
+
+#[test]
+fn vertex_field_png_and_svg() {
+    let out = out_dir();
+    let mesh = square_mesh(24);
+    let values: Vec<f64> = mesh.vertices.iter().map(|&p| field(p)).collect();
+    let title = "Displacement u_h (P1)";
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("vertex_field.{ext}"));
+        plot_vertex_field(&path, &mesh, &values, title).unwrap();
+        check_figure(&path, title);
+    }
+}
+
+#[test]
+fn constant_and_wide_fields_are_fine() {
+    let out = out_dir();
+    let mesh = square_mesh(3);
+    let zeros = vec![0.0; mesh.n_vertices()];
+    let path = out.dir.join("constant.png");
+    plot_vertex_field(&path, &mesh, &zeros, "constant").unwrap();
+    check_figure(&path, "constant");
+    let tiny: Vec<f64> = mesh
+        .vertices
+        .iter()
+        .map(|p| 1e-9 * (p[0] + 2.0 * p[1]))
+        .collect();
+    let path = out.dir.join("tiny.svg");
+    plot_vertex_field(&path, &mesh, &tiny, "tiny values").unwrap();
+    check_figure(&path, "tiny values");
+}
+
+/// Width and height of a PNG, from its IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    let be = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+    (be(16), be(20))
+}
+
+#[test]
+fn long_domains_keep_their_aspect_ratio() {
+    let out = out_dir();
+    for (name, sx, sy) in [("wide", 4.0, 1.0), ("tall", 1.0, 3.0)] {
+        let mut mesh = square_mesh(16);
+        for p in &mut mesh.vertices {
+            p[0] *= sx;
+            p[1] *= sy;
+        }
+        let values: Vec<f64> = mesh
+            .vertices
+            .iter()
+            .map(|p| field([p[0] / sx, p[1] / sy]))
+            .collect();
+        let path = out.dir.join(format!("{name}.png"));
+        plot_vertex_field(&path, &mesh, &values, name).unwrap();
+        check_figure(&path, name);
+        let (w, h) = png_size(&path);
+        assert!(
+            (sx > sy) == (w > h),
+            "{name}: a {sx}×{sy} domain drawn {w}×{h} px"
+        );
+    }
+}
+
+#[test]
+fn cell_field_png_and_svg() {
+    let out = out_dir();
+    let mesh = square_mesh(12);
+    let values: Vec<f64> = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let c = t.map(|v| mesh.vertices[v]);
+            field([
+                (c[0][0] + c[1][0] + c[2][0]) / 3.0,
+                (c[0][1] + c[1][1] + c[2][1]) / 3.0,
+            ])
+        })
+        .collect();
+    let title = "Multiplier per triangle";
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("cell_field.{ext}"));
+        plot_cell_field(&path, &mesh, &values, title).unwrap();
+        check_figure(&path, title);
+    }
+}
+
+#[test]
+fn contact_zone_per_vertex_and_per_triangle() {
+    let out = out_dir();
+    let mesh = square_mesh(20);
+    let radius = 0.55;
+    let per_vertex: Vec<bool> = mesh
+        .vertices
+        .iter()
+        .map(|p| p[0].hypot(p[1]) < radius)
+        .collect();
+    let per_triangle: Vec<bool> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.iter().all(|&v| per_vertex[v]))
+        .collect();
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("contact_vertices.{ext}"));
+        plot_contact_zone(
+            &path,
+            &mesh,
+            &per_vertex,
+            "Contact set (vertices)",
+            Some(radius),
+        )
+        .unwrap();
+        check_figure(&path, "Contact set (vertices)");
+        let path = out.dir.join(format!("contact_triangles.{ext}"));
+        plot_contact_zone(&path, &mesh, &per_triangle, "Contact set (triangles)", None).unwrap();
+        check_figure(&path, "Contact set (triangles)");
+    }
+    // A circle larger than the domain is clipped, not drawn outside.
+    let path = out.dir.join("contact_big_circle.png");
+    plot_contact_zone(&path, &mesh, &per_vertex, "big circle", Some(1.2)).unwrap();
+    check_figure(&path, "big circle");
+}
+
+#[test]
+fn history_semilog() {
+    let out = out_dir();
+    let mut h = History::with_columns(&["iteration", "kkt", "dual_step", "penetration"]);
+    for k in 0..120 {
+        let kf = k as f64;
+        let pen = if k % 17 == 5 {
+            0.0
+        } else {
+            1e-2 * 0.9f64.powf(kf)
+        };
+        h.push(&[kf, 0.93f64.powf(kf), 3.0 * 0.9f64.powf(kf), pen]);
+    }
+    let title = "Uzawa history";
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("history.{ext}"));
+        plot_history(&path, &h, &["kkt", "dual_step", "penetration"], title).unwrap();
+        check_figure(&path, title);
+    }
+    // A missing column is an error naming it, and leaves no file.
+    let path = out.dir.join("history_missing.png");
+    let err = plot_history(&path, &h, &["nope"], title).unwrap_err();
+    assert!(err.to_string().contains("nope"), "{err}");
+    assert!(!path.exists());
+    // An empty history still gives a figure.
+    let path = out.dir.join("history_empty.png");
+    plot_history(
+        &path,
+        &History::with_columns(&["iteration", "kkt"]),
+        &["kkt"],
+        "empty",
+    )
+    .unwrap();
+    check_figure(&path, "empty");
+}
+
+#[test]
+fn convergence_loglog() {
+    let out = out_dir();
+    let hs: [f64; 5] = [0.25, 0.125, 0.0625, 0.03125, 0.015625];
+    let series = vec![
+        (
+            "L2 error".to_string(),
+            hs.iter().map(|&h| (h, 0.8 * h * h * (1.0 + h))).collect(),
+        ),
+        (
+            "H1 error".to_string(),
+            hs.iter().map(|&h| (h, 1.5 * h)).collect(),
+        ),
+        (
+            "contact radius error".to_string(),
+            hs.iter()
+                .map(|&h| (h, 0.3 * h.powf(1.5)))
+                .chain([(0.01, 0.0)])
+                .collect(),
+        ),
+    ];
+    let title = "Convergence under refinement";
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("convergence.{ext}"));
+        plot_convergence(&path, &series, "h", "error", title, &[1.0, 2.0]).unwrap();
+        check_figure(&path, title);
+        let text = std::fs::read(&path).unwrap();
+        if ext == "svg" {
+            let text = String::from_utf8(text).unwrap();
+            assert!(text.contains("h^1") && text.contains("h^2"));
+        }
+    }
+    let path = out.dir.join("convergence_empty.svg");
+    plot_convergence(&path, &[], "h", "error", "nothing", &[1.0]).unwrap();
+    check_figure(&path, "nothing");
+}
+
+#[test]
+fn bad_input_is_an_error_and_writes_nothing() {
+    // Its own directory, whatever OBSTACLE_PLOT_DIR says: other tests may
+    // be writing temporary files into that one.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Out {
+        dir: tmp.path().to_path_buf(),
+        _tmp: tmp,
+    };
+    let mesh = square_mesh(4);
+    let mut values: Vec<f64> = mesh.vertices.iter().map(|&p| field(p)).collect();
+    values[7] = f64::NAN;
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("nan_vertex.{ext}"));
+        let err = plot_vertex_field(&path, &mesh, &values, "nan").unwrap_err();
+        assert!(err.to_string().contains("not finite"), "{err}");
+        assert!(!path.exists());
+    }
+    let mut cells = vec![1.0; mesh.n_triangles()];
+    cells[3] = f64::INFINITY;
+    let path = out.dir.join("nan_cell.png");
+    assert!(plot_cell_field(&path, &mesh, &cells, "inf").is_err());
+    assert!(!path.exists());
+    // Wrong lengths.
+    let path = out.dir.join("short.png");
+    assert!(plot_vertex_field(&path, &mesh, &[1.0, 2.0], "short").is_err());
+    assert!(plot_cell_field(&path, &mesh, &[1.0], "short").is_err());
+    assert!(plot_contact_zone(&path, &mesh, &[true], "short", None).is_err());
+    assert!(!path.exists());
+    // Bad radius, bad slope, bad extension, missing directory.
+    let flags = vec![false; mesh.n_vertices()];
+    assert!(plot_contact_zone(&path, &mesh, &flags, "r", Some(f64::NAN)).is_err());
+    assert!(plot_convergence(&path, &[], "h", "e", "t", &[f64::NAN]).is_err());
+    assert!(!path.exists());
+    let ok: Vec<f64> = mesh.vertices.iter().map(|&p| field(p)).collect();
+    let err = plot_vertex_field(&out.dir.join("field.pdf"), &mesh, &ok, "pdf").unwrap_err();
+    assert!(err.to_string().contains(".png or .svg"), "{err}");
+    let missing = out.dir.join("no/such/dir/field.png");
+    assert!(plot_vertex_field(&missing, &mesh, &ok, "missing").is_err());
+    // A broken mesh (built by hand, not validated) is an error too.
+    let mut broken = mesh.clone();
+    broken.triangles[0][1] = 10_000;
+    assert!(plot_vertex_field(&path, &broken, &ok, "broken").is_err());
+    assert!(!path.exists());
+    assert_no_leftovers(&out.dir);
+}
+
+#[test]
+fn overwrites_an_existing_figure() {
+    let out = out_dir();
+    let mesh = square_mesh(2);
+    let values: Vec<f64> = mesh.vertices.iter().map(|&p| field(p)).collect();
+    let path = out.dir.join("again.png");
+    std::fs::write(&path, b"old").unwrap();
+    plot_vertex_field(&path, &mesh, &values, "again").unwrap();
+    check_figure(&path, "again");
+}
+
+/// A fine mesh (45 000 triangles): sub-triangles within budget, and the
+/// contact figure draws the outline instead of a grey mass of edges.
+#[test]
+fn fine_mesh() {
+    let out = out_dir();
+    let mesh = square_mesh(150);
+    let values: Vec<f64> = mesh.vertices.iter().map(|&p| field(p)).collect();
+    let flags: Vec<bool> = mesh
+        .vertices
+        .iter()
+        .map(|p| p[0].hypot(p[1]) < 0.5)
+        .collect();
+    let path = out.dir.join("fine_field.png");
+    plot_vertex_field(&path, &mesh, &values, "fine field").unwrap();
+    check_figure(&path, "fine field");
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("fine_contact.{ext}"));
+        plot_contact_zone(&path, &mesh, &flags, "fine contact", Some(0.5)).unwrap();
+        check_figure(&path, "fine contact");
+    }
+}
