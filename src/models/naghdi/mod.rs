@@ -1,3 +1,6 @@
-//! The Naghdi shell in Cartesian form (Blouza–Le Dret, SPEC §2): midsurface geometry, material, obstacle function.
+//! The Naghdi shell in Cartesian form (Blouza–Le Dret, SPEC §2): midsurface
+//! geometry, material, obstacle function ([`geometry`]); the forms a_ρ, b, c,
+//! L and the discrete Problem 9 as an algebraic problem ([`forms`]).
 
+pub mod forms;
 pub mod geometry;
