@@ -139,11 +139,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         iterations: report.iterations,
         converged: report.converged,
         stop_reason: report.stop_reason.clone(),
-        last_dual_step: report
-            .history
-            .column("dual_step")
-            .and_then(|c| c.last().copied())
-            .unwrap_or(0.0),
+        last_dual_step: report.last_dual_step(),
         measures: report.measures,
         alpha,
         spectrum,
@@ -235,16 +231,7 @@ fn record_solver(
         ("tangency".into(), AttrValue::F64(m.tangency)),
         ("kkt".into(), AttrValue::F64(m.kkt)),
         ("active".into(), AttrValue::I64(m.active as i64)),
-        (
-            "dual_step".into(),
-            AttrValue::F64(
-                report
-                    .history
-                    .column("dual_step")
-                    .and_then(|c| c.last().copied())
-                    .unwrap_or(0.0),
-            ),
-        ),
+        ("dual_step".into(), AttrValue::F64(report.last_dual_step())),
         ("wall_seconds".into(), AttrValue::F64(report.wall_seconds)),
         (
             "factor_seconds".into(),

@@ -1331,18 +1331,7 @@ impl Figure for HistoryFigure<'_> {
         let (title_area, main) = root.split_vertically(TITLE_H);
         draw_title(&title_area, self.title)?;
         let points = || self.curves.iter().flat_map(|(_, p)| p.iter().flatten());
-        let (mut x0, mut x1, mut y0, mut y1) = (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        );
-        for &(x, y) in points() {
-            x0 = x0.min(x);
-            x1 = x1.max(x);
-            y0 = y0.min(y);
-            y1 = y1.max(y);
-        }
+        let (mut x0, mut x1, mut y0, mut y1) = bounding_box(points().copied());
         let empty = x0 > x1;
         if empty {
             (x0, x1, y0, y1) = (0.0, 1.0, 1e-3, 1.0);
@@ -1405,26 +1394,12 @@ impl Figure for HistoryFigure<'_> {
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
             chart.draw_series(isolated.into_iter().map(|p| Circle::new(p, 3, c.filled())))?;
         }
-        if !self.curves.is_empty() {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .margin(12)
-                .label_font((FONT, 17))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .draw()?;
-        }
-        if empty {
-            let (w, h) = chart.plotting_area().dim_in_pixel();
-            let (bx, by) = chart.plotting_area().get_base_pixel();
-            root.draw(&Text::new(
-                "no positive value to plot",
-                (bx + w as i32 / 2, by + h as i32 / 2),
-                text_style(18.0, Pos::new(HPos::Center, VPos::Center)),
-            ))?;
-        }
-        Ok(())
+        finish_chart(
+            &mut chart,
+            root,
+            (!self.curves.is_empty()).then_some(SeriesLabelPosition::UpperRight),
+            empty.then_some("no positive value to plot"),
+        )
     }
 }
 
@@ -1438,6 +1413,51 @@ struct ConvergenceFigure<'a> {
 
 /// Least-squares slope of log y against log x (None for fewer than two
 /// distinct x).
+/// (x_min, x_max, y_min, y_max) of points; x_min > x_max when there are none.
+fn bounding_box(points: impl Iterator<Item = (f64, f64)>) -> (f64, f64, f64, f64) {
+    points.fold(
+        (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ),
+        |(x0, x1, y0, y1), (x, y)| (x0.min(x), x1.max(x), y0.min(y), y1.max(y)),
+    )
+}
+
+/// The legend (where given) and, on an empty chart, a note in its middle.
+fn finish_chart<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    root: &DrawingArea<DB, Shift>,
+    legend: Option<SeriesLabelPosition>,
+    empty_note: Option<&str>,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    if let Some(position) = legend {
+        chart
+            .configure_series_labels()
+            .position(position)
+            .margin(12)
+            .label_font((FONT, 17))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.4))
+            .draw()?;
+    }
+    if let Some(note) = empty_note {
+        let (w, h) = chart.plotting_area().dim_in_pixel();
+        let (bx, by) = chart.plotting_area().get_base_pixel();
+        root.draw(&Text::new(
+            note,
+            (bx + w as i32 / 2, by + h as i32 / 2),
+            text_style(18.0, Pos::new(HPos::Center, VPos::Center)),
+        ))?;
+    }
+    Ok(())
+}
+
 fn loglog_slope(pts: &[(f64, f64)]) -> Option<f64> {
     let n = pts.len() as f64;
     if pts.len() < 2 {
@@ -1472,18 +1492,8 @@ impl Figure for ConvergenceFigure<'_> {
     {
         let (title_area, main) = root.split_vertically(TITLE_H);
         draw_title(&title_area, self.title)?;
-        let (mut x0, mut x1, mut y0, mut y1) = (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        );
-        for &(x, y) in self.series.iter().flat_map(|(_, p)| p) {
-            x0 = x0.min(x);
-            x1 = x1.max(x);
-            y0 = y0.min(y);
-            y1 = y1.max(y);
-        }
+        let (mut x0, mut x1, mut y0, mut y1) =
+            bounding_box(self.series.iter().flat_map(|(_, p)| p).copied());
         let empty = x0 > x1;
         if empty {
             (x0, x1, y0, y1) = (0.1, 1.0, 0.1, 1.0);
@@ -1583,26 +1593,12 @@ impl Figure for ConvergenceFigure<'_> {
                 });
             chart.draw_series(pts.iter().map(|&p| Circle::new(p, 5, c.filled())))?;
         }
-        if !self.series.is_empty() {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .margin(12)
-                .label_font((FONT, 17))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .draw()?;
-        }
-        if empty {
-            let (w, h) = chart.plotting_area().dim_in_pixel();
-            let (bx, by) = chart.plotting_area().get_base_pixel();
-            root.draw(&Text::new(
-                "no positive point to plot",
-                (bx + w as i32 / 2, by + h as i32 / 2),
-                text_style(18.0, Pos::new(HPos::Center, VPos::Center)),
-            ))?;
-        }
-        Ok(())
+        finish_chart(
+            &mut chart,
+            root,
+            (!self.series.is_empty()).then_some(SeriesLabelPosition::UpperLeft),
+            empty.then_some("no positive point to plot"),
+        )
     }
 }
 

@@ -202,10 +202,7 @@ impl<'m> MembraneSystem<'m> {
         if let (Some(obstacle), Some(c)) = (&scene.obstacle, &problem.constraint) {
             let phi = Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
             data.fields.push(vertex_field("phi", phi));
-            let cx = crate::assembly::mat_vec(&c.matrix, &report.x);
-            let gap: Vec<f64> = (0..cx.len())
-                .map(|i| (cx[i] - c.obstacle[i]) / c.weights[i])
-                .collect();
+            let gap = c.mean_gaps(&report.x);
             let location = match self.lambda_space.element {
                 Element::P0 => Location::Cell,
                 _ => Location::Vertex,

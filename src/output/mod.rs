@@ -6,7 +6,6 @@
 pub mod hdf5_io;
 pub mod xdmf;
 
-use crate::mesh::Mesh;
 
 /// A scalar attribute value.
 #[derive(Debug, Clone, PartialEq)]
@@ -65,9 +64,6 @@ pub struct ResultFile {
 
 pub use hdf5_io::{program_version, read_result, write_result};
 pub use xdmf::xdmf_path;
-
-/// Keep the type in scope for the writer signature.
-pub type MeshRef<'a> = &'a Mesh;
 
 impl std::fmt::Display for AttrValue {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

@@ -28,8 +28,14 @@ pub struct KktMeasures {
     pub kkt: f64,
 }
 
-/// Computes the measures of (x, λ) for a problem.
-pub fn kkt_measures(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> KktMeasures {
+/// Computes the measures of (x, λ) for a problem. `cx` is C x when the
+/// caller already has it (Uzawa does: it needs it for the step).
+pub fn kkt_measures(
+    problem: &ContactProblem,
+    x: &[f64],
+    lambda: &[f64],
+    cx: Option<&[f64]>,
+) -> KktMeasures {
     let n_primal = problem.n_primal;
     let mut r = mat_vec(&problem.matrix, x);
     for (ri, fi) in r.iter_mut().zip(&problem.rhs) {
@@ -43,7 +49,14 @@ pub fn kkt_measures(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> KktM
         for (ri, ci) in r.iter_mut().zip(&ct_lambda) {
             *ri -= ci;
         }
-        let cx = mat_vec(&c.matrix, x);
+        let computed;
+        let cx = match cx {
+            Some(cx) => cx,
+            None => {
+                computed = mat_vec(&c.matrix, x);
+                &computed
+            }
+        };
         let obstacle_scale = c
             .obstacle
             .iter()
@@ -53,7 +66,7 @@ pub fn kkt_measures(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> KktM
         let lambda_scale = norm_inf(lambda).max(f64::MIN_POSITIVE);
         m.dual_min = f64::INFINITY;
         for i in 0..lambda.len() {
-            let gap = (cx[i] - c.obstacle[i]) / c.weights[i];
+            let gap = c.mean_gap(cx, i);
             m.penetration = m.penetration.max(-gap);
             m.complementarity = m.complementarity.max((lambda[i] * gap).abs());
             m.dual_min = m.dual_min.min(lambda[i]);

@@ -32,6 +32,19 @@ pub struct Constraint {
     pub weights: Vec<f64>,
 }
 
+impl Constraint {
+    /// ḡ_i = ((C x)_i − g_i) / w_i for i, given C x.
+    pub fn mean_gap(&self, cx: &[f64], i: usize) -> f64 {
+        (cx[i] - self.obstacle[i]) / self.weights[i]
+    }
+
+    /// All mean gaps of x.
+    pub fn mean_gaps(&self, x: &[f64]) -> Vec<f64> {
+        let cx = crate::assembly::mat_vec(&self.matrix, x);
+        (0..cx.len()).map(|i| self.mean_gap(&cx, i)).collect()
+    }
+}
+
 /// An algebraic contact problem (see the module documentation).
 pub struct ContactProblem {
     /// The n × n system matrix A (stiffness, or a saddle-point matrix).
@@ -72,4 +85,14 @@ pub struct SolveReport {
     pub wall_seconds: f64,
     /// Named scalar parameters and estimates (alpha, s_max, ...).
     pub parameters: Vec<(String, f64)>,
+}
+
+impl SolveReport {
+    /// ‖λ^k − λ^{k−1}‖ of the last iteration (the thesis criterion); 0 without iterations.
+    pub fn last_dual_step(&self) -> f64 {
+        self.history
+            .column("dual_step")
+            .and_then(|c| c.last().copied())
+            .unwrap_or(0.0)
+    }
 }

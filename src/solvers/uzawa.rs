@@ -64,7 +64,7 @@ pub fn solve_linear(
     let mut x = problem.rhs.clone();
     factorization.solve_in_place(&mut x);
     check_finite("linear solve", 1, "solution", &x)?;
-    let measures = kkt_measures(problem, &x, &[]);
+    let measures = kkt_measures(problem, &x, &[], None);
     Ok(SolveReport {
         algorithm: "linear".into(),
         x,
@@ -125,14 +125,14 @@ pub fn uzawa(
         let cx = mat_vec(&c.matrix, &x);
         let new_lambda: Vec<f64> = (0..m)
             .map(|i| {
-                let mean_gap = (cx[i] - c.obstacle[i]) / c.weights[i];
+                let mean_gap = c.mean_gap(&cx, i);
                 (lambda[i] - options.alpha * step_weights[i] * mean_gap).max(0.0)
             })
             .collect();
         check_finite("Uzawa", k, "multiplier λ", &new_lambda)?;
         let step = dual_step_norm(&new_lambda, &lambda, &c.weights, options.dual_norm);
         lambda = new_lambda;
-        measures = kkt_measures(problem, &x, &lambda);
+        measures = kkt_measures(problem, &x, &lambda, Some(&cx));
         let mut row = vec![
             k as f64,
             step,
