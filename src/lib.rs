@@ -3,9 +3,10 @@
 //!
 //! The pipeline, one module a stage: [`scene`] (the one input) → [`gmsh`] /
 //! [`mesh`] → [`space`] (FE spaces, DOF maps) → [`assembly`] (forms as plain
-//! functions) → [`models`] (membrane, ...) build an algebraic contact problem
+//! functions) → [`models`] (membrane, Naghdi shell) build an algebraic contact problem
 //! → [`solvers`] (know nothing about the models) → [`output`] (HDF5 + XDMF).
-//! [`pipeline`] runs these steps for one scene; [`study`] runs many.
+//! [`pipeline`] runs these steps for one scene; [`study`] runs many, and
+//! [`transfer`] measures a run against a finer one.
 
 // FE kernels index several arrays with the same local index; iterator
 // chains would hide that, so index loops are kept.
@@ -26,5 +27,6 @@ pub mod scene;
 pub mod solvers;
 pub mod space;
 pub mod study;
+pub mod transfer;
 
 pub use error::{Error, Result};

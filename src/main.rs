@@ -6,7 +6,10 @@ use obstacle_fem::output::{read_result, summary};
 use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
 use obstacle_fem::scene::Scene;
-use obstacle_fem::study::{csv_table, markdown_table, run_study, write_convergence_plots, Study};
+use obstacle_fem::study::{
+    csv_table, history_tables, markdown_table, reference_study, run_study, write_convergence_plots,
+    Study,
+};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -137,13 +140,22 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let rows = run_study(&study, &out_dir, !quiet && progress_wanted())?;
             let spec = Study::load(&study)?;
-            let title = spec.title.clone().unwrap_or_else(|| spec.name.clone());
-            let md = markdown_table(&title, &rows);
+            let mut md = markdown_table(&spec, &rows);
+            if let Some(h) = &spec.history {
+                md.push_str(&history_tables(h, &rows));
+            }
+            if let Some(r) = &spec.reference {
+                let (table, plots) = reference_study(&spec, r, &rows, &out_dir)?;
+                md.push_str(&table);
+                for f in plots {
+                    println!("plot: {}", f.display());
+                }
+            }
             print!("{md}");
             write_text(&out_dir.join(format!("{}.md", spec.name)), &md)?;
             write_text(
                 &out_dir.join(format!("{}.csv", spec.name)),
-                &csv_table(&rows),
+                &csv_table(&spec, &rows),
             )?;
             if spec.convergence_plot {
                 for f in write_convergence_plots(&spec, &rows, &out_dir)? {

@@ -3,22 +3,25 @@
 
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
-use crate::linalg::factorize_checked;
+use crate::linalg::{factorize_checked, MatrixKind};
 use crate::mesh::Mesh;
 use crate::models::membrane::{ExactErrors, MembraneSystem};
+use crate::models::naghdi::system::NaghdiSystem;
+use crate::models::ModelSystem;
 use crate::output::{write_result, AttrValue, Location, ResultData};
 use crate::plot;
-use crate::scene::{Alpha, PlotKind, Scene, StepForm};
+use crate::scene::{Alpha, Model, PlotKind, Scene, StepForm};
 use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
-use crate::solvers::{KktMeasures, SolveReport};
+use crate::solvers::{History, KktMeasures, SolveReport};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// What a run reports besides its result file (one row of a study table).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct RunSummary {
     pub scene: String,
+    pub model: String,
     pub element: String,
     pub h: f64,
     pub n_vertices: usize,
@@ -34,8 +37,27 @@ pub struct RunSummary {
     pub alpha: Option<f64>,
     pub spectrum: Option<SpectrumEstimate>,
     pub errors: Option<ExactErrors>,
+    /// The model's root attributes of the result file (u3 range, contact area, ...).
+    pub attrs: Vec<(String, AttrValue)>,
+    pub history: History,
+    /// Solver time after the factorisation (the iterations).
+    pub solve_seconds: f64,
     pub wall_seconds: f64,
     pub result_file: PathBuf,
+}
+
+impl RunSummary {
+    /// A numeric root attribute of the result, by name.
+    pub fn attr(&self, name: &str) -> Option<f64> {
+        self.attrs
+            .iter()
+            .find(|(k, _)| k == name)
+            .and_then(|(_, v)| match v {
+                AttrValue::F64(x) => Some(*x),
+                AttrValue::I64(x) => Some(*x as f64),
+                _ => None,
+            })
+    }
 }
 
 /// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
@@ -79,13 +101,20 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         .map_err(|e| Error::output(dir, format!("cannot create the output folder: {e}")))?;
     let mesh = scene_mesh(scene, &out.with_extension("msh"))?;
 
-    // Setup and assembly.
-    let system = MembraneSystem::setup(&mesh, scene)?;
+    // Setup and assembly of the scene's model.
+    let system: Box<dyn ModelSystem + '_> = match scene.model {
+        Model::Membrane => Box::new(MembraneSystem::setup(&mesh, scene)?),
+        Model::Naghdi => Box::new(NaghdiSystem::setup(&mesh, scene)?),
+    };
     let problem = system.assemble(scene)?;
 
     // One factorisation, reused by every iteration.
     let t = Instant::now();
-    let factorization = factorize_checked(&problem.matrix, problem.kind, "stiffness matrix")?;
+    let what = match problem.kind {
+        MatrixKind::SymmetricPositiveDefinite => "stiffness matrix",
+        MatrixKind::General => "saddle-point matrix [[K_ρ, Bᵀ], [B, 0]]",
+    };
+    let factorization = factorize_checked(&problem.matrix, problem.kind, what)?;
     let factor_seconds = t.elapsed().as_secs_f64();
 
     let solver = &scene.solver;
@@ -112,7 +141,13 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
                     show_progress,
                 };
                 (
-                    uzawa(&problem, &factorization, factor_seconds, &options, &[])?,
+                    uzawa(
+                        &problem,
+                        &factorization,
+                        factor_seconds,
+                        &options,
+                        &system.probes(),
+                    )?,
                     Some(alpha),
                     spectrum,
                 )
@@ -130,11 +165,12 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     write_plots(scene, out, &mesh, &data, &report, errors.as_ref())?;
     Ok(RunSummary {
         scene: scene.name.clone(),
+        model: scene.model.name().into(),
         element: scene.element.name().into(),
         h: mesh.h_max(),
         n_vertices: mesh.n_vertices(),
         n_triangles: mesh.n_triangles(),
-        n_dofs: system.u_space.n_dofs(),
+        n_dofs: system.n_dofs(),
         algorithm: report.algorithm.clone(),
         iterations: report.iterations,
         converged: report.converged,
@@ -144,6 +180,9 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         alpha,
         spectrum,
         errors,
+        attrs: data.root_attrs.clone(),
+        history: report.history.clone(),
+        solve_seconds: report.wall_seconds - report.factor_seconds,
         wall_seconds: start.elapsed().as_secs_f64(),
         result_file: out.to_path_buf(),
     })
@@ -165,12 +204,16 @@ fn write_plots(
         let path = out.with_extension(format!("{name}.{ext}"));
         let title = format!("{}: {name} ({})", scene.name, scene.element.name());
         match kind {
-            PlotKind::History if !report.history.is_empty() => plot::plot_history(
-                &path,
-                &report.history,
-                &["dual_step", "penetration", "complementarity", "kkt"],
-                &title,
-            )?,
+            PlotKind::History => {
+                if report.history.is_empty() {
+                    continue;
+                }
+                let mut columns = vec!["dual_step", "penetration", "complementarity", "kkt"];
+                if report.history.column("gap_origin").is_some() {
+                    columns.push("gap_origin");
+                }
+                plot::plot_history(&path, &report.history, &columns, &title)?
+            }
             PlotKind::Contact => {
                 if let Some(f) = field("contact") {
                     let active: Vec<bool> = f.values.iter().map(|&v| v > 0.0).collect();
@@ -181,6 +224,22 @@ fn write_plots(
                         &title,
                         errors.map(|e| e.exact_contact_radius),
                     )?;
+                }
+            }
+            PlotKind::U1 | PlotKind::U2 | PlotKind::U3 => {
+                let c = match kind {
+                    PlotKind::U1 => 0,
+                    PlotKind::U2 => 1,
+                    _ => 2,
+                };
+                if let Some(f) = field("u") {
+                    let values: Vec<f64> = f.values.iter().skip(c).step_by(3).copied().collect();
+                    plot::plot_vertex_field(&path, mesh, &values, &title)?;
+                }
+            }
+            PlotKind::Constraint => {
+                if let (Some(w), Some(phi)) = (field("constraint"), field("phi")) {
+                    write_constraint_plots(&path, mesh, &w.values, &phi.values, &title)?;
                 }
             }
             PlotKind::U | PlotKind::Lambda | PlotKind::Gap => {
@@ -198,10 +257,62 @@ fn write_plots(
                     }
                 }
             }
-            PlotKind::History => {}
         }
     }
     Ok(())
+}
+
+/// The shell's constraint w = (u − ε/2 r)·e3 against Φ_h (thesis Fig. 5.6):
+/// a colour map of w − Φ_h (zero on the contact zone) at `path`, and the
+/// profiles of w and Φ_h along the axes y = 0 and x = 0 (through the
+/// vertices that lie on them) at `<stem>-profiles.<ext>`.
+fn write_constraint_plots(
+    path: &Path,
+    mesh: &Mesh,
+    w: &[f64],
+    phi: &[f64],
+    title: &str,
+) -> Result<()> {
+    let gap: Vec<f64> = w.iter().zip(phi).map(|(a, b)| a - b).collect();
+    plot::plot_vertex_field(path, mesh, &gap, &format!("{title}: (u − ε/2 r)·e3 − Φ_h"))?;
+    let diameter = mesh.h_max().max(
+        mesh.vertices
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v[0].abs()).max(v[1].abs())),
+    );
+    let mut series = Vec::new();
+    for (axis, along, across) in [("y = 0", 0, 1), ("x = 0", 1, 0)] {
+        let on_axis: Vec<usize> = (0..mesh.n_vertices())
+            .filter(|&v| mesh.vertices[v][across].abs() <= 1e-9 * diameter)
+            .collect();
+        if on_axis.len() < 3 {
+            continue;
+        }
+        let line = |f: &[f64]| -> Vec<(f64, f64)> {
+            on_axis
+                .iter()
+                .map(|&v| (mesh.vertices[v][along], f[v]))
+                .collect()
+        };
+        series.push((format!("(u − ε/2 r)·e3 on {axis}"), line(w)));
+        series.push((format!("Φ_h on {axis}"), line(phi)));
+    }
+    if series.is_empty() {
+        return Ok(());
+    }
+    let stem = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("constraint");
+    let ext = path.extension().and_then(|s| s.to_str()).unwrap_or("png");
+    let profiles = path.with_file_name(format!("{stem}-profiles.{ext}"));
+    plot::plot_lines(
+        &profiles,
+        &series,
+        "x or y",
+        "z",
+        &format!("{title}: profiles"),
+    )
 }
 
 /// The `/solver` attributes and history of SPEC §5.

@@ -7,6 +7,7 @@
 //! overridden from the command line (`--set solver.alpha=0.9`).
 
 use crate::error::{Error, Result};
+use crate::models::naghdi::geometry::{Chart, Material};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -20,6 +21,8 @@ pub struct Scene {
     pub element: ElementPair,
     pub mesh: MeshSpec,
     pub load: Option<LoadSpec>,
+    /// The shell's chart, material, penalty and clamped parts (model "naghdi").
+    pub shell: Option<ShellSpec>,
     /// No `[obstacle]` table: no contact, one linear solve.
     pub obstacle: Option<ObstacleSpec>,
     pub solver: SolverSpec,
@@ -38,6 +41,17 @@ pub struct Scene {
 pub enum Model {
     /// −Δu = g, u = 0 on the boundary, u ≥ φ (SPEC §1).
     Membrane,
+    /// The Cartesian Naghdi shell, optionally in contact with a rigid plane (SPEC §2).
+    Naghdi,
+}
+
+impl Model {
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Membrane => "membrane",
+            Model::Naghdi => "naghdi",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -79,32 +93,92 @@ pub struct MeshSpec {
 #[serde(deny_unknown_fields)]
 pub struct LoadSpec {
     /// Constant source term g of −Δu = g (membrane).
-    pub g: f64,
+    pub g: Option<f64>,
+    /// Constant force per unit area f = (f1, f2, f3) (shell): L(V) ∋ ∫ f·v √a dx.
+    pub f: Option<[f64; 3]>,
+    /// Tractions N and moments M on parts γ1 of the boundary (shell).
+    #[serde(default)]
+    pub edge: Vec<EdgeLoadSpec>,
+}
+
+/// A constant traction N and moment M on one named boundary part γ1:
+/// L(V) ∋ ∫_γ1 (N·v + M·s) ℓ dσ, ℓ = |a_α ς^α| the length element of the chart.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EdgeLoadSpec {
+    /// Physical name of the boundary part (must not be clamped).
+    pub part: String,
+    #[serde(default)]
+    pub traction: [f64; 3],
+    #[serde(default)]
+    pub moment: [f64; 3],
+}
+
+/// The shell of model "naghdi": midsurface chart, material, the penalty ρ of
+/// a_ρ, and the clamped boundary parts γ0.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShellSpec {
+    pub chart: Chart,
+    /// Young's modulus E.
+    pub young: f64,
+    /// Poisson's ratio ν ∈ [0, 1/2).
+    pub poisson: f64,
+    /// Thickness ε.
+    pub thickness: f64,
+    /// Penalty ρ ≥ 0 of a_ρ = a + ρ ∫ ∇(r·a3)·∇(s·a3) (ρ = 0: a_ρ is not coercive).
+    pub rho: f64,
+    /// Physical names of the clamped parts γ0 (u = r = ψ = 0); default: all of ∂ω.
+    pub clamped: Option<Vec<String>>,
+}
+
+impl ShellSpec {
+    pub fn material(&self) -> Material {
+        Material {
+            young: self.young,
+            poisson: self.poisson,
+            thickness: self.thickness,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObstacleSpec {
     pub shape: ObstacleShape,
-    /// φ(0, 0).
-    pub height: f64,
-    /// k in φ = height − k (x² + y²).
-    #[serde(default)]
-    pub curvature: f64,
+    /// Paraboloid: φ(0, 0). Rigid plane: the plane z = height (default 0).
+    pub height: Option<f64>,
+    /// k in φ = height − k (x² + y²) (paraboloid only).
+    pub curvature: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ObstacleShape {
-    /// φ(x, y) = height − curvature · (x² + y²).
+    /// Membrane: φ(x, y) = height − curvature · (x² + y²).
     Paraboloid,
+    /// Shell: the rigid half-space z < height below the shell (SPEC §2).
+    RigidPlane,
+}
+
+impl ObstacleShape {
+    pub fn name(self) -> &'static str {
+        match self {
+            ObstacleShape::Paraboloid => "paraboloid",
+            ObstacleShape::RigidPlane => "rigid-plane",
+        }
+    }
 }
 
 impl ObstacleSpec {
+    /// The height: φ(0, 0) or the plane's level.
+    pub fn level(&self) -> f64 {
+        self.height.unwrap_or(0.0)
+    }
+
+    /// The membrane obstacle φ(x) (paraboloid).
     pub fn value(&self, x: [f64; 2]) -> f64 {
-        match self.shape {
-            ObstacleShape::Paraboloid => self.height - self.curvature * (x[0] * x[0] + x[1] * x[1]),
-        }
+        self.level() - self.curvature.unwrap_or(0.0) * (x[0] * x[0] + x[1] * x[1])
     }
 }
 
@@ -148,6 +222,14 @@ fn default_thesis_tol() -> f64 {
 pub enum Method {
     /// The thesis' Uzawa iteration (Algorithm 1, SPEC §3).
     Uzawa,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Uzawa => "uzawa",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
@@ -209,8 +291,15 @@ pub struct OutputSpec {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PlotKind {
-    /// Colour map and isolines of u.
+    /// Colour map and isolines of u (membrane).
     U,
+    /// The shell displacement components.
+    U1,
+    U2,
+    U3,
+    /// The shell's contact constraint (u − ε/2 r)·e3 against Φ_h: colour map
+    /// of the gap and profiles along the axes.
+    Constraint,
     /// The multiplier λ.
     Lambda,
     /// The mean gap ḡ.
@@ -227,6 +316,16 @@ pub enum PlotFormat {
     #[default]
     Png,
     Svg,
+}
+
+impl PlotKind {
+    /// Plots that only the shell can draw.
+    pub fn shell_only(self) -> bool {
+        matches!(
+            self,
+            PlotKind::U1 | PlotKind::U2 | PlotKind::U3 | PlotKind::Constraint
+        )
+    }
 }
 
 impl PlotFormat {
@@ -294,13 +393,7 @@ impl Scene {
 
     /// Range checks that the types cannot express.
     fn validate(&self) -> Result<()> {
-        let finite = |field: &str, v: f64| {
-            if v.is_finite() {
-                Ok(())
-            } else {
-                Err(self.error(field, format!("must be a finite number, got {v}")))
-            }
-        };
+        let finite = |field: &str, v: f64| self.check_finite(field, v);
         let positive = |field: &str, v: f64| {
             finite(field, v)?;
             if v > 0.0 {
@@ -341,15 +434,13 @@ impl Scene {
         if let Some(h) = m.h {
             positive("mesh.h", h)?;
         }
-        if let Some(load) = &self.load {
-            finite("load.g", load.g)?;
-        }
-        if self.model == Model::Membrane && self.load.is_none() {
-            return Err(self.error("load", "the membrane model needs `[load] g = ...`"));
-        }
         if let Some(o) = &self.obstacle {
-            finite("obstacle.height", o.height)?;
-            finite("obstacle.curvature", o.curvature)?;
+            finite("obstacle.height", o.level())?;
+            finite("obstacle.curvature", o.curvature.unwrap_or(0.0))?;
+        }
+        match self.model {
+            Model::Membrane => self.validate_membrane()?,
+            Model::Naghdi => self.validate_naghdi()?,
         }
         let s = &self.solver;
         if let Some(Alpha::Value(a)) = s.alpha {
@@ -378,6 +469,150 @@ impl Scene {
         positive("solver.tol", s.tol)?;
         positive("solver.thesis_tol", s.thesis_tol)?;
         Ok(())
+    }
+
+    /// What the membrane model needs and cannot use.
+    fn validate_membrane(&self) -> Result<()> {
+        let load = self
+            .load
+            .as_ref()
+            .ok_or_else(|| self.error("load", "the membrane model needs `[load] g = ...`"))?;
+        let g = load
+            .g
+            .ok_or_else(|| self.error("load.g", "the membrane model needs the source term g"))?;
+        self.check_finite("load.g", g)?;
+        if load.f.is_some() || !load.edge.is_empty() {
+            return Err(self.error(
+                "load",
+                "`f` and `edge` are shell loads; the membrane takes `g`",
+            ));
+        }
+        if self.shell.is_some() {
+            return Err(self.error("shell", "a [shell] table needs model = \"naghdi\""));
+        }
+        if let Some(o) = &self.obstacle {
+            if o.shape != ObstacleShape::Paraboloid {
+                return Err(self.error(
+                    "obstacle.shape",
+                    format!(
+                        "the membrane takes shape = \"paraboloid\", not \"{}\"",
+                        o.shape.name()
+                    ),
+                ));
+            }
+            if o.height.is_none() {
+                return Err(self.error("obstacle.height", "the paraboloid needs φ(0,0) = height"));
+            }
+        }
+        if let Some(k) = self.output.plots.iter().find(|k| k.shell_only()) {
+            return Err(self.error(
+                "output.plots",
+                format!("{k:?} is a shell plot; the membrane has \"u\"").to_lowercase(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// What the shell model needs and cannot use.
+    fn validate_naghdi(&self) -> Result<()> {
+        let shell = self.shell.as_ref().ok_or_else(|| {
+            self.error(
+                "shell",
+                "model = \"naghdi\" needs a [shell] table (chart, young, poisson, thickness, rho)",
+            )
+        })?;
+        shell
+            .chart
+            .validate()
+            .map_err(|reason| self.error("shell.chart", reason))?;
+        let material_field = |reason: &str| {
+            ["young", "poisson", "thickness"]
+                .into_iter()
+                .find(|f| reason.contains(f))
+                .map_or("shell".to_string(), |f| format!("shell.{f}"))
+        };
+        shell
+            .material()
+            .validate()
+            .map_err(|reason| self.error(&material_field(&reason), reason))?;
+        self.check_finite("shell.rho", shell.rho)?;
+        if shell.rho < 0.0 {
+            return Err(self.error(
+                "shell.rho",
+                format!("the penalty must be ≥ 0, got {}", shell.rho),
+            ));
+        }
+        if self.element != ElementPair::P1bP0 {
+            return Err(self.error(
+                "element",
+                "the shell is discretised with P1⊕B3 for (U, ψ) and P0 for λ: element = \"p1b-p0\"",
+            ));
+        }
+        if self.mesh.dirichlet.is_some() {
+            return Err(self.error(
+                "mesh.dirichlet",
+                "the shell names its clamped parts in `shell.clamped`",
+            ));
+        }
+        if let Some(load) = &self.load {
+            if load.g.is_some() {
+                return Err(self.error(
+                    "load.g",
+                    "g is the membrane's source term; the shell takes f = [f1, f2, f3]",
+                ));
+            }
+            for (i, v) in load.f.iter().flatten().enumerate() {
+                self.check_finite(&format!("load.f[{i}]"), *v)?;
+            }
+            for (e, edge) in load.edge.iter().enumerate() {
+                for (i, v) in edge.traction.iter().chain(&edge.moment).enumerate() {
+                    let name = if i < 3 { "traction" } else { "moment" };
+                    self.check_finite(&format!("load.edge[{e}].{name}[{}]", i % 3), *v)?;
+                }
+                if shell
+                    .clamped
+                    .as_ref()
+                    .is_none_or(|c| c.contains(&edge.part))
+                {
+                    return Err(self.error(
+                        &format!("load.edge[{e}].part"),
+                        format!(
+                            "`{}` is clamped (shell.clamped, default: all of the boundary): tractions act on the free part γ1 only",
+                            edge.part
+                        ),
+                    ));
+                }
+            }
+        }
+        if let Some(o) = &self.obstacle {
+            if o.shape != ObstacleShape::RigidPlane || o.curvature.is_some() {
+                return Err(self.error(
+                    "obstacle.shape",
+                    "the shell's obstacle is shape = \"rigid-plane\" (optional height, no curvature)",
+                ));
+            }
+        }
+        if self.output.errors {
+            return Err(self.error(
+                "output.errors",
+                "no exact solution is known for the shell; errors against a finer mesh come from a study",
+            ));
+        }
+        if self.output.plots.contains(&PlotKind::U) {
+            return Err(self.error(
+                "output.plots",
+                "the shell plots its components: \"u1\", \"u2\", \"u3\" (and \"constraint\")",
+            ));
+        }
+        Ok(())
+    }
+
+    fn check_finite(&self, field: &str, v: f64) -> Result<()> {
+        if v.is_finite() {
+            Ok(())
+        } else {
+            Err(self.error(field, format!("must be a finite number, got {v}")))
+        }
     }
 
     /// A path of the scene, relative to the scene file's folder.

@@ -17,9 +17,11 @@
 
 use crate::error::{Error, Result};
 use crate::models::membrane::ExactErrors;
+use crate::output::read_result;
 use crate::pipeline::{run_scene, RunSummary};
 use crate::plot;
 use crate::scene::Scene;
+use crate::transfer::relative_errors;
 use serde::Deserialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -36,6 +38,26 @@ pub struct Study {
     /// Draw errors against h (log–log), one figure per group of the outer sweeps.
     #[serde(default)]
     pub convergence_plot: bool,
+    /// Table columns (default [`DEFAULT_COLUMNS`]); see [`column_value`].
+    pub columns: Option<Vec<String>>,
+    /// Per run, a table of history values at given iterations (thesis Table 5.5).
+    pub history: Option<HistoryTableSpec>,
+    /// Errors of each run against the last (finest) run of its group (thesis Fig. 5.10).
+    pub reference: Option<ReferenceSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HistoryTableSpec {
+    pub iterations: Vec<usize>,
+    pub columns: Vec<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSpec {
+    /// Coefficient vectors (`/dofs/<name>`) compared, e.g. ["u", "r", "psi", "lambda"].
+    pub fields: Vec<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -49,6 +71,10 @@ pub struct Sweep {
 pub struct StudyRow {
     pub labels: Vec<(String, String)>,
     pub summary: RunSummary,
+    /// A run that failed numerically (divergence, singular matrix, ...) is a
+    /// result of the study, not the end of it: its message is kept here and
+    /// its row shows "failed".
+    pub failure: Option<String>,
 }
 
 impl Study {
@@ -106,8 +132,22 @@ pub fn run_study(study_path: &Path, out_dir: &Path, show_progress: bool) -> Resu
         overrides.extend(labels.iter().map(|(k, v)| format!("{k}={v}")));
         let scene = Scene::load(&scene_path, &overrides)?;
         let out: PathBuf = out_dir.join(format!("{}-{:03}.h5", study.name, i));
-        let summary = run_scene(&scene, &out, show_progress)?;
-        if show_progress {
+        let (summary, failure) = match run_scene(&scene, &out, show_progress) {
+            Ok(summary) => (summary, None),
+            Err(e @ Error::Numerical { .. }) => {
+                eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
+                let summary = RunSummary {
+                    scene: scene.name.clone(),
+                    model: scene.model.name().into(),
+                    element: scene.element.name().into(),
+                    stop_reason: "failed".into(),
+                    ..Default::default()
+                };
+                (summary, Some(e.to_string()))
+            }
+            Err(e) => return Err(e),
+        };
+        if show_progress && failure.is_none() {
             eprintln!(
                 "[{}] {} → {} iterations, kkt {:.2e}, {:.2}s",
                 i,
@@ -117,7 +157,11 @@ pub fn run_study(study_path: &Path, out_dir: &Path, show_progress: bool) -> Resu
                 summary.wall_seconds
             );
         }
-        rows.push(StudyRow { labels, summary });
+        rows.push(StudyRow {
+            labels,
+            summary,
+            failure,
+        });
     }
     Ok(rows)
 }
@@ -143,37 +187,152 @@ pub fn rates(rows: &[StudyRow], error: impl Fn(&RunSummary) -> Option<f64>) -> V
     out
 }
 
-const COLUMNS: [&str; 20] = [
+/// The columns of a study table when the study names none (the membrane's
+/// thesis tables). Names: see [`column_value`].
+pub const DEFAULT_COLUMNS: [&str; 20] = [
     "h",
-    "#tri",
-    "#dofs",
+    "triangles",
+    "dofs",
     "alpha",
-    "iter",
+    "iterations",
     "stop",
-    "‖Δλ‖",
+    "dual_step",
     "penetration",
     "complementarity",
     "stationarity",
-    "KKT",
-    "L² err",
-    "rate",
-    "H¹ err",
-    "rate",
-    "a_h",
-    "|a_h−a|",
-    "λ L² err",
-    "2/s_max",
-    "time [s]",
+    "kkt",
+    "error_l2",
+    "rate_l2",
+    "error_h1",
+    "rate_h1",
+    "contact_radius",
+    "contact_radius_error",
+    "error_l2_lambda",
+    "stability_bound",
+    "time",
 ];
 
-fn opt(v: Option<f64>, precision: usize) -> String {
-    v.map_or("–".into(), |x| format!("{x:.precision$e}"))
+/// One table cell: a number with its display precision, or text.
+enum Cell {
+    Number(f64, Display),
+    Text(String),
+    Missing,
+}
+
+#[derive(Clone, Copy)]
+enum Display {
+    /// Scientific with this many digits.
+    Sci(usize),
+    /// Fixed with this many decimals.
+    Fixed(usize),
+    Integer,
+}
+
+/// The heading of a column in the Markdown table.
+fn column_heading(name: &str) -> String {
+    let h = match name {
+        "h" => "h",
+        "triangles" => "#tri",
+        "dofs" => "#dofs",
+        "alpha" => "alpha",
+        "iterations" => "iter",
+        "stop" => "stop",
+        "dual_step" => "‖Δλ‖",
+        "penetration" => "penetration",
+        "complementarity" => "complementarity",
+        "stationarity" => "stationarity",
+        "tangency" => "‖BU‖",
+        "kkt" => "KKT",
+        "error_l2" => "L² err",
+        "rate_l2" | "rate_h1" => "rate",
+        "error_h1" => "H¹ err",
+        "contact_radius" => "a_h",
+        "contact_radius_error" => "|a_h−a|",
+        "error_l2_lambda" => "λ L² err",
+        "stability_bound" => "2/s_max",
+        "time" => "time [s]",
+        "time_per_iteration" => "time/iter [ms]",
+        other => other,
+    };
+    h.to_string()
+}
+
+/// The value of column `name` for row `i`. Besides the names of
+/// [`DEFAULT_COLUMNS`]: "tangency", "time_per_iteration", and any numeric
+/// root attribute of the result file by its name (e.g. "u3_min",
+/// "gap_origin", "contact_area" for the shell).
+fn column_value(
+    name: &str,
+    rows: &[StudyRow],
+    i: usize,
+    l2_rates: &[Option<f64>],
+    h1_rates: &[Option<f64>],
+) -> Cell {
+    use Display::*;
+    let s = &rows[i].summary;
+    let m = &s.measures;
+    let e = s.errors;
+    let num = |v: Option<f64>, d: Display| v.map_or(Cell::Missing, |x| Cell::Number(x, d));
+    if rows[i].failure.is_some() {
+        return if name == "stop" {
+            Cell::Text("failed".into())
+        } else {
+            Cell::Missing
+        };
+    }
+    match name {
+        "h" => Cell::Number(s.h, Fixed(4)),
+        "triangles" => Cell::Number(s.n_triangles as f64, Integer),
+        "dofs" => Cell::Number(s.n_dofs as f64, Integer),
+        "alpha" => num(s.alpha, Fixed(4)),
+        "iterations" => Cell::Number(s.iterations as f64, Integer),
+        "stop" => Cell::Text(s.stop_reason.clone()),
+        "dual_step" => Cell::Number(s.last_dual_step, Sci(3)),
+        "penetration" => Cell::Number(m.penetration, Sci(2)),
+        "complementarity" => Cell::Number(m.complementarity, Sci(2)),
+        "stationarity" => Cell::Number(m.stationarity, Sci(2)),
+        "tangency" => Cell::Number(m.tangency, Sci(2)),
+        "kkt" => Cell::Number(m.kkt, Sci(2)),
+        "error_l2" => num(e.map(|e| e.l2), Sci(3)),
+        "rate_l2" => num(l2_rates[i], Fixed(2)),
+        "error_h1" => num(e.map(|e| e.h1), Sci(3)),
+        "rate_h1" => num(h1_rates[i], Fixed(2)),
+        "contact_radius" => num(e.map(|e| e.contact_radius), Fixed(4)),
+        "contact_radius_error" => num(
+            e.map(|e| (e.contact_radius - e.exact_contact_radius).abs()),
+            Sci(2),
+        ),
+        "error_l2_lambda" => num(e.map(|e| e.lambda_l2), Sci(2)),
+        "stability_bound" => num(s.spectrum.map(|sp| 2.0 / sp.s_max), Fixed(3)),
+        "time" => Cell::Number(s.wall_seconds, Fixed(3)),
+        "time_per_iteration" => {
+            Cell::Number(1e3 * s.solve_seconds / s.iterations.max(1) as f64, Sci(3))
+        }
+        attr => num(s.attr(attr), Sci(4)),
+    }
+}
+
+/// The column names of a study (its `columns`, or the defaults).
+fn columns_of(study: &Study) -> Vec<String> {
+    study
+        .columns
+        .clone()
+        .unwrap_or_else(|| DEFAULT_COLUMNS.iter().map(|c| c.to_string()).collect())
 }
 
 /// The study as a Markdown table (one table per value of the outer sweeps).
-pub fn markdown_table(title: &str, rows: &[StudyRow]) -> String {
+pub fn markdown_table(study: &Study, rows: &[StudyRow]) -> String {
+    let title = study.title.clone().unwrap_or_else(|| study.name.clone());
+    let columns = columns_of(study);
     let l2_rates = rates(rows, |s| s.errors.map(|e| e.l2));
     let h1_rates = rates(rows, |s| s.errors.map(|e| e.h1));
+    // The innermost sweep's value leads each row (the outer ones head the tables).
+    let inner_key = study.sweep.last().map(|s| s.key.clone());
+    let headings: Vec<String> = inner_key
+        .iter()
+        .cloned()
+        .chain(columns.iter().map(|c| column_heading(c)))
+        .collect();
     let mut md = format!("## {title}\n");
     let mut group: Option<Vec<(String, String)>> = None;
     for (i, row) in rows.iter().enumerate() {
@@ -189,92 +348,207 @@ pub fn markdown_table(title: &str, rows: &[StudyRow]) -> String {
                     heading.join(", ")
                 }
             );
-            let _ = writeln!(md, "| {} |", COLUMNS.join(" | "));
-            let _ = writeln!(md, "|{}", "---|".repeat(COLUMNS.len()));
+            let _ = writeln!(md, "| {} |", headings.join(" | "));
+            let _ = writeln!(md, "|{}", "---|".repeat(headings.len()));
             group = Some(outer);
         }
-        let s = &row.summary;
-        let m = &s.measures;
-        let e = s.errors;
-        let cells = [
-            format!("{:.4}", s.h),
-            s.n_triangles.to_string(),
-            s.n_dofs.to_string(),
-            s.alpha.map_or("–".into(), |a| format!("{a:.4}")),
-            s.iterations.to_string(),
-            s.stop_reason.clone(),
-            format!("{:.3e}", s.last_dual_step),
-            format!("{:.2e}", m.penetration),
-            format!("{:.2e}", m.complementarity),
-            format!("{:.2e}", m.stationarity),
-            format!("{:.2e}", m.kkt),
-            opt(e.map(|e| e.l2), 3),
-            l2_rates[i].map_or("–".into(), |r| format!("{r:.2}")),
-            opt(e.map(|e| e.h1), 3),
-            h1_rates[i].map_or("–".into(), |r| format!("{r:.2}")),
-            e.map_or("–".into(), |e| format!("{:.4}", e.contact_radius)),
-            opt(
-                e.map(|e| (e.contact_radius - e.exact_contact_radius).abs()),
-                2,
-            ),
-            opt(e.map(|e| e.lambda_l2), 2),
-            s.spectrum
-                .map_or("–".into(), |sp| format!("{:.3}", 2.0 / sp.s_max)),
-            format!("{:.3}", s.wall_seconds),
-        ];
+        let inner_value = row.labels.last().map(|(_, v)| v.clone());
+        let cells: Vec<String> =
+            inner_value
+                .into_iter()
+                .chain(columns.iter().map(|c| {
+                    match column_value(c, rows, i, &l2_rates, &h1_rates) {
+                        Cell::Number(x, Display::Sci(p)) => format!("{x:.p$e}"),
+                        Cell::Number(x, Display::Fixed(p)) => format!("{x:.p$}"),
+                        Cell::Number(x, Display::Integer) => format!("{x:.0}"),
+                        Cell::Text(t) => t,
+                        Cell::Missing => "–".into(),
+                    }
+                }))
+                .collect();
         let _ = writeln!(md, "| {} |", cells.join(" | "));
+    }
+    let failures: Vec<String> = rows
+        .iter()
+        .filter_map(|r| {
+            let labels: Vec<String> = r.labels.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            r.failure
+                .as_ref()
+                .map(|f| format!("- {}: {f}", labels.join(", ")))
+        })
+        .collect();
+    if !failures.is_empty() {
+        let _ = writeln!(md, "\nFailed runs:\n\n{}", failures.join("\n"));
     }
     md
 }
 
-/// The study as CSV (one line per run, labels first).
-pub fn csv_table(rows: &[StudyRow]) -> String {
+/// The study as CSV (one line per run: labels, the table's columns at full
+/// precision, converged, result file).
+pub fn csv_table(study: &Study, rows: &[StudyRow]) -> String {
+    let columns = columns_of(study);
+    let l2_rates = rates(rows, |s| s.errors.map(|e| e.l2));
+    let h1_rates = rates(rows, |s| s.errors.map(|e| e.h1));
     let mut csv = String::new();
     if let Some(first) = rows.first() {
         let labels: Vec<&str> = first.labels.iter().map(|(k, _)| k.as_str()).collect();
-        let _ = writeln!(
-            csv,
-            "{},h,n_triangles,n_dofs,alpha,iterations,converged,stop_reason,dual_step,penetration,complementarity,stationarity,kkt,error_l2,error_h1,contact_radius,exact_contact_radius,error_l2_lambda,s_max,wall_seconds,result_file",
-            labels.join(",")
-        );
+        let mut head: Vec<String> = labels.iter().map(|l| l.to_string()).collect();
+        head.extend(columns.iter().cloned());
+        head.extend(["converged".to_string(), "result_file".to_string()]);
+        let _ = writeln!(csv, "{}", head.join(","));
     }
-    for row in rows {
-        let s = &row.summary;
-        let m = &s.measures;
-        let e = s.errors;
-        let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:e}"));
-        let labels: Vec<String> = row
+    for (i, row) in rows.iter().enumerate() {
+        let mut line: Vec<String> = row
             .labels
             .iter()
             .map(|(_, v)| v.replace(',', ";"))
             .collect();
-        let _ = writeln!(
-            csv,
-            "{},{:e},{},{},{},{},{},{},{:e},{:e},{:e},{:e},{:e},{},{},{},{},{},{},{:e},{}",
-            labels.join(","),
-            s.h,
-            s.n_triangles,
-            s.n_dofs,
-            f(s.alpha),
-            s.iterations,
-            s.converged,
-            s.stop_reason,
-            s.last_dual_step,
-            m.penetration,
-            m.complementarity,
-            m.stationarity,
-            m.kkt,
-            f(e.map(|e| e.l2)),
-            f(e.map(|e| e.h1)),
-            f(e.map(|e| e.contact_radius)),
-            f(e.map(|e| e.exact_contact_radius)),
-            f(e.map(|e| e.lambda_l2)),
-            f(s.spectrum.map(|sp| sp.s_max)),
-            s.wall_seconds,
-            s.result_file.display()
+        line.extend(
+            columns
+                .iter()
+                .map(|c| match column_value(c, rows, i, &l2_rates, &h1_rates) {
+                    Cell::Number(x, _) => format!("{x:e}"),
+                    Cell::Text(t) => t.replace(',', ";"),
+                    Cell::Missing => String::new(),
+                }),
         );
+        line.push(row.summary.converged.to_string());
+        line.push(row.summary.result_file.display().to_string());
+        let _ = writeln!(csv, "{}", line.join(","));
     }
     csv
+}
+
+/// Per run, the history values at the study's iterations (thesis Table 5.5):
+/// one Markdown table per run, a row per history column.
+pub fn history_tables(spec: &HistoryTableSpec, rows: &[StudyRow]) -> String {
+    let mut md = String::new();
+    for row in rows.iter().filter(|r| r.failure.is_none()) {
+        let h = &row.summary.history;
+        let labels: Vec<String> = row
+            .labels
+            .iter()
+            .map(|(k, v)| format!("{k} = {v}"))
+            .collect();
+        let _ = writeln!(
+            md,
+            "\n### History: {}\n",
+            if labels.is_empty() {
+                row.summary.scene.clone()
+            } else {
+                labels.join(", ")
+            }
+        );
+        let its: Vec<String> = spec.iterations.iter().map(|k| k.to_string()).collect();
+        let _ = writeln!(md, "| iteration | {} |", its.join(" | "));
+        let _ = writeln!(md, "|---|{}", "---|".repeat(its.len()));
+        for name in &spec.columns {
+            let cells: Vec<String> = spec
+                .iterations
+                .iter()
+                .map(|&k| {
+                    h.column(name)
+                        .and_then(|c| c.get(k.wrapping_sub(1)))
+                        .map_or("–".into(), |v| format!("{v:.6e}"))
+                })
+                .collect();
+            let _ = writeln!(md, "| {} | {} |", column_heading(name), cells.join(" | "));
+        }
+    }
+    md
+}
+
+/// Relative L² errors of each component against the last run of each group
+/// of the outer sweeps (the finest mesh), their least-squares rates in h,
+/// a Markdown table and one log–log plot per group.
+pub fn reference_study(
+    study: &Study,
+    spec: &ReferenceSpec,
+    rows: &[StudyRow],
+    out_dir: &Path,
+) -> Result<(String, Vec<PathBuf>)> {
+    let mut md = String::new();
+    let mut files = Vec::new();
+    let outer = |r: &StudyRow| r.labels[..r.labels.len().saturating_sub(1)].to_vec();
+    let mut start = 0;
+    while start < rows.len() {
+        let group = outer(&rows[start]);
+        let end = start
+            + rows[start..]
+                .iter()
+                .take_while(|r| outer(r) == group)
+                .count();
+        if rows[end - 1].failure.is_some() {
+            let _ = writeln!(
+                md,
+                "\nThe finest run of a group failed: no reference errors."
+            );
+            start = end;
+            continue;
+        }
+        let reference = &rows[end - 1].summary;
+        let ref_file = read_result(&reference.result_file)?;
+        let mut levels: Vec<(f64, Vec<(String, f64)>)> = Vec::new();
+        for row in rows[start..end - 1].iter().filter(|r| r.failure.is_none()) {
+            let s = &row.summary;
+            let file = read_result(&s.result_file)?;
+            let errors = relative_errors(
+                (&file, &s.result_file),
+                (&ref_file, &reference.result_file),
+                &spec.fields,
+            )?;
+            levels.push((s.h, errors));
+        }
+        let Some((_, first)) = levels.first() else {
+            start = end;
+            continue;
+        };
+        let names: Vec<String> = first.iter().map(|(n, _)| n.clone()).collect();
+        let label: Vec<String> = group.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+        let _ = writeln!(
+            md,
+            "\n### Relative L² errors against the finest mesh (h = {:.4}){}\n",
+            reference.h,
+            if label.is_empty() {
+                String::new()
+            } else {
+                format!(", {}", label.join(", "))
+            }
+        );
+        let _ = writeln!(md, "| h | {} |", names.join(" | "));
+        let _ = writeln!(md, "|---|{}", "---|".repeat(names.len()));
+        for (h, errors) in &levels {
+            let cells: Vec<String> = errors.iter().map(|(_, e)| format!("{e:.3e}")).collect();
+            let _ = writeln!(md, "| {h:.4} | {} |", cells.join(" | "));
+        }
+        let series: Vec<(String, Vec<(f64, f64)>)> = names
+            .iter()
+            .enumerate()
+            .map(|(c, n)| {
+                (
+                    n.clone(),
+                    levels.iter().map(|(h, e)| (*h, e[c].1)).collect(),
+                )
+            })
+            .collect();
+        let slopes: Vec<String> = series
+            .iter()
+            .map(|(_, pts)| plot::loglog_slope(pts).map_or("–".into(), |k| format!("{k:.2}")))
+            .collect();
+        let _ = writeln!(md, "| fitted rate κ | {} |", slopes.join(" | "));
+        let path = out_dir.join(format!("{}-reference-{}.png", study.name, files.len()));
+        plot::plot_convergence(
+            &path,
+            &series,
+            "h",
+            "relative L² error",
+            &format!("{}: errors against h = {:.3}", study.name, reference.h),
+            &[0.5, 1.0, 2.0],
+        )?;
+        files.push(path);
+        start = end;
+    }
+    Ok((md, files))
 }
 
 /// Log–log plots of the exact-solution errors against h, one per group of the

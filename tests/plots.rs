@@ -5,7 +5,8 @@
 
 use obstacle_fem::mesh::{BoundaryEdge, Mesh};
 use obstacle_fem::plot::{
-    plot_cell_field, plot_contact_zone, plot_convergence, plot_history, plot_vertex_field,
+    plot_cell_field, plot_contact_zone, plot_convergence, plot_history, plot_lines,
+    plot_vertex_field,
 };
 use obstacle_fem::solvers::measures::History;
 use std::collections::BTreeMap;
@@ -331,6 +332,110 @@ fn convergence_loglog() {
     check_figure(&path, "nothing");
 }
 
+/// Profiles along y = 0 as a pipeline writes them: the shell's constraint
+/// resting on an obstacle bump, points in vertex order (not sorted by x).
+fn profiles() -> Vec<(String, Vec<(f64, f64)>)> {
+    let xs: Vec<f64> = (0..41)
+        .map(|i| -1.0 + 0.05 * ((i * 17) % 41) as f64)
+        .collect();
+    let phi = |x: f64| 0.2 - 0.5 * x * x;
+    let w = |x: f64| phi(x).max(0.1 * (1.0 - x * x));
+    vec![
+        (
+            "(u − ε/2 r)·e3 on y = 0".to_string(),
+            xs.iter().map(|&x| (x, w(x))).collect(),
+        ),
+        (
+            "Φ_h on y = 0".to_string(),
+            xs.iter().map(|&x| (x, phi(x))).collect(),
+        ),
+    ]
+}
+
+#[test]
+fn lines_png_and_svg() {
+    let out = out_dir();
+    let mut series = profiles();
+    // A gap (non-finite y), a point without a place (non-finite x), and a
+    // series of one point.
+    series[0].1.push((0.33, f64::NAN));
+    series[1].1.push((f64::INFINITY, 0.0));
+    series.push(("probe".to_string(), vec![(0.5, 0.0)]));
+    let title = "Constraint and obstacle: profiles";
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("lines.{ext}"));
+        plot_lines(&path, &series, "x", "z", title).unwrap();
+        check_figure(&path, title);
+        if ext == "svg" {
+            let text = std::fs::read_to_string(&path).unwrap();
+            for name in ["Φ_h on y = 0", "probe", "z"] {
+                assert!(text.contains(name), "the SVG lacks {name:?}");
+            }
+        }
+    }
+}
+
+/// Curves through every corner of the plot: the legend needs room above them.
+#[test]
+fn lines_with_a_crowded_plot() {
+    let out = out_dir();
+    let wave = |phase: f64| -> Vec<(f64, f64)> {
+        (0..=200)
+            .map(|i| {
+                let x = -1.0 + 0.01 * i as f64;
+                (x, (6.0 * x + phase).sin())
+            })
+            .collect()
+    };
+    let series: Vec<(String, Vec<(f64, f64)>)> = (0..4)
+        .map(|k| {
+            let name = format!("(u − ε/2 r)·e3 on a long line name {k}");
+            (name, wave(0.8 * k as f64))
+        })
+        .collect();
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("lines_crowded.{ext}"));
+        plot_lines(&path, &series, "x or y", "z", "crowded").unwrap();
+        check_figure(&path, "crowded");
+    }
+}
+
+#[test]
+fn lines_without_data_and_with_odd_ranges() {
+    let out = out_dir();
+    let nothing: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    let all_bad = vec![
+        ("nan".to_string(), vec![(f64::NAN, 1.0), (0.0, f64::NAN)]),
+        ("empty".to_string(), Vec::new()),
+    ];
+    let odd = [
+        ("constant", vec![(0.0, 2.5), (1.0, 2.5), (2.0, 2.5)]),
+        ("one point", vec![(3.0, -1.0)]),
+        ("one x", vec![(1.0, 0.0), (1.0, 1.0)]),
+        (
+            "narrow",
+            vec![(0.0, 1.00001), (1.0, 1.00002), (2.0, 1.000015)],
+        ),
+        ("tiny", vec![(0.0, 1e-12), (1e-9, -1e-12)]),
+        ("huge", vec![(-f64::MAX, f64::MAX), (f64::MAX, -f64::MAX)]),
+    ];
+    for ext in ["png", "svg"] {
+        let path = out.dir.join(format!("lines_none.{ext}"));
+        plot_lines(&path, &nothing, "x", "z", "no series").unwrap();
+        check_figure(&path, "no series");
+        let path = out.dir.join(format!("lines_all_bad.{ext}"));
+        plot_lines(&path, &all_bad, "x", "z", "no finite point").unwrap();
+        check_figure(&path, "no finite point");
+        for (name, pts) in &odd {
+            let path = out
+                .dir
+                .join(format!("lines_{}.{ext}", name.replace(' ', "_")));
+            plot_lines(&path, &[(name.to_string(), pts.clone())], "x", "z", name).unwrap();
+            check_figure(&path, name);
+        }
+    }
+}
+
 #[test]
 fn bad_input_is_an_error_and_writes_nothing() {
     // Its own directory, whatever OBSTACLE_PLOT_DIR says: other tests may
@@ -370,6 +475,13 @@ fn bad_input_is_an_error_and_writes_nothing() {
     assert!(err.to_string().contains(".png or .svg"), "{err}");
     let missing = out.dir.join("no/such/dir/field.png");
     assert!(plot_vertex_field(&missing, &mesh, &ok, "missing").is_err());
+    for name in ["lines.pdf", "lines", "lines.png.tmp"] {
+        let bad = out.dir.join(name);
+        let err = plot_lines(&bad, &profiles(), "x", "z", "bad").unwrap_err();
+        assert!(err.to_string().contains(".png or .svg"), "{err}");
+        assert!(!bad.exists());
+    }
+    assert!(plot_lines(&missing.with_extension("svg"), &profiles(), "x", "z", "t").is_err());
     // A broken mesh (built by hand, not validated) is an error too.
     let mut broken = mesh.clone();
     broken.triangles[0][1] = 10_000;

@@ -6,11 +6,12 @@
 //! from `solvers` → [`MembraneSystem::results`] (fields, errors).
 
 use super::exact::RadialObstacle;
+use super::{named_boundary_tags, vertex_field, ModelSystem};
 use crate::assembly::{
     assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
     mass, DofNumbering,
 };
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
 use crate::output::{AttrValue, Field, Location, ResultData};
@@ -48,7 +49,12 @@ impl<'m> MembraneSystem<'m> {
             ElementPair::P2P1 => (Element::P2, Element::P1),
         };
         let u_space = Space::new(mesh, u_element);
-        let tags = dirichlet_tags(mesh, scene)?;
+        let tags = named_boundary_tags(
+            mesh,
+            scene,
+            "mesh.dirichlet",
+            scene.mesh.dirichlet.as_deref(),
+        )?;
         let fixed = u_space.boundary_dof_mask(tags.as_deref());
         let numbering = DofNumbering::from_fixed_mask(&fixed);
         let mut simulated = vec!["load".to_string(), "dirichlet".to_string()];
@@ -65,13 +71,21 @@ impl<'m> MembraneSystem<'m> {
         })
     }
 
+    /// Full coefficient vector of u (Dirichlet values included).
+    pub fn u_coefficients(&self, report: &SolveReport) -> Vec<f64> {
+        self.numbering
+            .extend(&report.x, &vec![0.0; self.u_space.n_dofs()])
+    }
+}
+
+impl ModelSystem for MembraneSystem<'_> {
     /// The algebraic problem: stiffness K, load F, and (only when the scene has
     /// an obstacle) the constraint C u ≥ g with its Riesz weights.
-    pub fn assemble(&self, scene: &Scene) -> Result<ContactProblem> {
+    fn assemble(&self, scene: &Scene) -> Result<ContactProblem> {
         // Degree 5 (Radon, 7 points) is exact for every integrand below:
         // ∇(P1⊕B3)·∇(P1⊕B3) has degree 4, P2·P1 and φ·P1 degree 3.
         let rule = TriangleRule::exact_for(5);
-        let g = scene.load.as_ref().map_or(0.0, |l| l.g);
+        let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
         let u = &self.u_space;
         let k_full = assemble_bilinear(u, u, &rule, laplace);
         let fixed_values = vec![0.0; u.n_dofs()];
@@ -134,14 +148,8 @@ impl<'m> MembraneSystem<'m> {
         })
     }
 
-    /// Full coefficient vector of u (Dirichlet values included).
-    pub fn u_coefficients(&self, report: &SolveReport) -> Vec<f64> {
-        self.numbering
-            .extend(&report.x, &vec![0.0; self.u_space.n_dofs()])
-    }
-
     /// Errors against the exact radial solution, when the scene is that case.
-    pub fn exact_errors(
+    fn exact_errors(
         &self,
         scene: &Scene,
         problem: &ContactProblem,
@@ -152,7 +160,8 @@ impl<'m> MembraneSystem<'m> {
             scene.obstacle.as_ref()?,
             problem.constraint.as_ref()?,
         );
-        let exact = RadialObstacle::new(load.g, obstacle.height, obstacle.curvature)?;
+        let exact =
+            RadialObstacle::new(load.g?, obstacle.level(), obstacle.curvature.unwrap_or(0.0))?;
         let u = self.u_coefficients(report);
         // The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
         // a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
@@ -184,12 +193,7 @@ impl<'m> MembraneSystem<'m> {
     }
 
     /// Fields and coefficient vectors for the result file (SPEC §5).
-    pub fn results(
-        &self,
-        scene: &Scene,
-        problem: &ContactProblem,
-        report: &SolveReport,
-    ) -> ResultData {
+    fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData {
         let u = self.u_coefficients(report);
         let mut data = ResultData {
             scene_text: scene.text.clone(),
@@ -257,39 +261,8 @@ impl<'m> MembraneSystem<'m> {
         }
         data
     }
-}
 
-fn vertex_field(name: &str, values: Vec<f64>) -> Field {
-    Field {
-        name: name.into(),
-        values,
-        components: 1,
-        location: Location::Vertex,
+    fn n_dofs(&self) -> usize {
+        self.u_space.n_dofs()
     }
-}
-
-/// Physical tags of the boundary parts the scene names (None: all).
-pub fn dirichlet_tags(mesh: &Mesh, scene: &Scene) -> Result<Option<Vec<i32>>> {
-    let Some(names) = &scene.mesh.dirichlet else {
-        return Ok(None);
-    };
-    names
-        .iter()
-        .map(|name| {
-            mesh.tag_by_name(name).ok_or_else(|| Error::Scene {
-                file: scene.source.clone(),
-                field: "mesh.dirichlet".into(),
-                reason: format!(
-                    "the mesh {} has no boundary part named `{name}` (it has: {})",
-                    mesh.source.display(),
-                    mesh.physical_names
-                        .values()
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })
-        })
-        .collect::<Result<Vec<_>>>()
-        .map(Some)
 }

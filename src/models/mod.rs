@@ -1,7 +1,91 @@
 //! Models: each turns a scene and a mesh into an algebraic
-//! [`ContactProblem`](crate::solvers::ContactProblem) using the shared FE
-//! machinery, and turns the solver's answer back into fields.
+//! [`ContactProblem`] using the shared FE machinery, and turns the solver's
+//! answer back into fields. The pipeline sees a model only through
+//! [`ModelSystem`].
 
 pub mod exact;
 pub mod membrane;
 pub mod naghdi;
+
+use crate::error::{Error, Result};
+use crate::mesh::Mesh;
+use crate::output::{Field, Location, ResultData};
+use crate::scene::Scene;
+use crate::solvers::uzawa::Probe;
+use crate::solvers::{ContactProblem, SolveReport};
+use membrane::ExactErrors;
+
+/// A model set up on a mesh for a scene: the steps of a run after meshing.
+pub trait ModelSystem {
+    /// The algebraic problem; the constraint only when the scene has an obstacle.
+    fn assemble(&self, scene: &Scene) -> Result<ContactProblem>;
+    /// Model quantities recorded in the solver history every iteration.
+    fn probes(&self) -> Vec<Probe> {
+        Vec::new()
+    }
+    /// Fields, coefficient vectors and model attributes for the result file.
+    fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData;
+    /// Errors against an exact solution, when the scene has one and asks for it.
+    fn exact_errors(
+        &self,
+        _scene: &Scene,
+        _problem: &ContactProblem,
+        _report: &SolveReport,
+    ) -> Option<ExactErrors> {
+        None
+    }
+    /// Number of discrete unknowns as the thesis counts them (boundary dofs included).
+    fn n_dofs(&self) -> usize;
+}
+
+/// The physical tags of the boundary parts `names` (scene field `field`);
+/// None (no names given) means all of the boundary.
+pub fn named_boundary_tags(
+    mesh: &Mesh,
+    scene: &Scene,
+    field: &str,
+    names: Option<&[String]>,
+) -> Result<Option<Vec<i32>>> {
+    let Some(names) = names else {
+        return Ok(None);
+    };
+    names
+        .iter()
+        .map(|name| {
+            mesh.tag_by_name(name).ok_or_else(|| Error::Scene {
+                file: scene.source.clone(),
+                field: field.into(),
+                reason: format!(
+                    "the mesh {} has no boundary part named `{name}` (it has: {})",
+                    mesh.source.display(),
+                    mesh.physical_names
+                        .values()
+                        .cloned()
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+        })
+        .collect::<Result<Vec<_>>>()
+        .map(Some)
+}
+
+/// A scalar field at the vertices.
+pub fn vertex_field(name: &str, values: Vec<f64>) -> Field {
+    Field {
+        name: name.into(),
+        values,
+        components: 1,
+        location: Location::Vertex,
+    }
+}
+
+/// A scalar field on the triangles.
+pub fn cell_field(name: &str, values: Vec<f64>) -> Field {
+    Field {
+        name: name.into(),
+        values,
+        components: 1,
+        location: Location::Cell,
+    }
+}

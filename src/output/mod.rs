@@ -6,7 +6,6 @@
 pub mod hdf5_io;
 pub mod xdmf;
 
-
 /// A scalar attribute value.
 #[derive(Debug, Clone, PartialEq)]
 pub enum AttrValue {

@@ -13,9 +13,12 @@
 //! multiplier space (|T| for P0, lumped mass for P1), so that the *mean gap*
 //! ḡ_i = (C x − g)_i / w_i is the constraint in the units of the unknown.
 
+pub mod active_set;
+pub mod dual_accelerated;
 pub mod measures;
 pub mod spectrum;
 pub mod uzawa;
+pub mod uzawa_split;
 
 use crate::linalg::MatrixKind;
 use faer::sparse::SparseColMat;

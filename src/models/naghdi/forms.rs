@@ -22,7 +22,7 @@ use super::geometry::{obstacle_function, Chart, Material, SurfacePoint};
 use crate::assembly::{eliminate, quad_points, DofNumbering, Triplets};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
-use crate::quadrature::TriangleRule;
+use crate::quadrature::{SegmentRule, TriangleRule};
 use crate::solvers::{Constraint, ContactProblem};
 use crate::space::{Element, Space, TriangleGeometry};
 use nalgebra::{Matrix2, Vector3};
@@ -335,27 +335,72 @@ pub fn assemble_shell(
     load: [f64; 3],
     clamped_tags: Option<&[i32]>,
 ) -> (ContactProblem, DofNumbering) {
-    let layout = ShellLayout::new(mesh);
     let numbering = clamped_numbering(mesh, clamped_tags);
     let (a_full, f_full) = assemble_shell_full(mesh, chart, material, rho, load);
-    // Homogeneous clamping: the lifting shift is zero.
+    let problem = restrict_shell(mesh, &a_full, &f_full, &numbering, MatrixKind::General);
+    (problem, numbering)
+}
+
+/// The shell problem over the free dofs of `numbering` (homogeneous clamping:
+/// fixed dofs are zero, so no lifting): A restricted, F restricted,
+/// n_primal = number of free U dofs (they come first in block order).
+pub fn restrict_shell(
+    mesh: &Mesh,
+    a_full: &Triplets,
+    f_full: &[f64],
+    numbering: &DofNumbering,
+    kind: MatrixKind,
+) -> ContactProblem {
+    let layout = ShellLayout::new(mesh);
     let zeros = vec![0.0; layout.n_total()];
-    let (a, _) = eliminate(&a_full, &numbering, &numbering, &zeros);
-    let rhs = numbering.restrict(&f_full);
+    let (a, _) = eliminate(a_full, numbering, numbering, &zeros);
     let psi_start = layout.index(PSI, 0);
     let n_primal = numbering
         .free_dofs
         .iter()
         .filter(|&&d| d < psi_start)
         .count();
-    let problem = ContactProblem {
+    ContactProblem {
         matrix: a.to_sparse(),
-        kind: MatrixKind::General,
-        rhs,
+        kind,
+        rhs: numbering.restrict(f_full),
         n_primal,
         constraint: None,
-    };
-    (problem, numbering)
+    }
+}
+
+/// Adds the edge loads ∫_γ1 (N·v + M·s) ℓ dσ to a full load vector, on the
+/// boundary edges with tag `tag`; ℓ = |a_α ς^α| is the chart's length element
+/// along the edge (ς the unit tangent in ω). On an edge the bubble vanishes
+/// and the hats are linear; ℓ is not polynomial, so a 5-point Gauss rule.
+pub fn add_edge_load(
+    mesh: &Mesh,
+    chart: &Chart,
+    tag: i32,
+    traction: [f64; 3],
+    moment: [f64; 3],
+    f_full: &mut [f64],
+) {
+    let layout = ShellLayout::new(mesh);
+    let rule = SegmentRule::exact_for(9);
+    for edge in mesh.boundary_edges.iter().filter(|e| e.tag == tag) {
+        let [p, q] = edge.vertices.map(|v| mesh.vertices[v]);
+        let d = [q[0] - p[0], q[1] - p[1]];
+        let length = d[0].hypot(d[1]);
+        for (&s, &w) in rule.points.iter().zip(&rule.weights) {
+            let x = [p[0] + s * d[0], p[1] + s * d[1]];
+            let sp = chart.at(x);
+            let ell = (sp.a1 * (d[0] / length) + sp.a2 * (d[1] / length)).norm();
+            for (k, hat) in [(0, 1.0 - s), (1, s)] {
+                let v = edge.vertices[k];
+                for c in 0..3 {
+                    let weight = w * length * ell * hat;
+                    f_full[layout.index(c, v)] += weight * traction[c];
+                    f_full[layout.index(3 + c, v)] += weight * moment[c];
+                }
+            }
+        }
+    }
 }
 
 /// Rescales the tangency multiplier: the matrix becomes [[K_ρ, σBᵀ], [σB, 0]],
@@ -408,7 +453,8 @@ pub fn balanced_tangency_scale(problem: &ContactProblem) -> f64 {
     }
 }
 
-/// The P1 interpolant of the obstacle function Φ = (ε/2 a3 − φ)·e3 at the vertices.
+/// The P1 interpolant of the obstacle function Φ = (ε/2 a3 − φ)·e3 at the
+/// vertices, for the rigid plane z = 0.
 pub fn obstacle_at_vertices(mesh: &Mesh, chart: &Chart, material: &Material) -> Vec<f64> {
     mesh.vertices
         .iter()
@@ -426,10 +472,21 @@ pub fn rigid_plane_constraint(
     material: &Material,
     numbering: &DofNumbering,
 ) -> Constraint {
+    let phi = obstacle_at_vertices(mesh, chart, material);
+    plane_constraint(mesh, material, &phi, numbering)
+}
+
+/// The P0 contact constraint (u − ε/2 r)·e3 ≥ Φ_h on triangle means, given
+/// the obstacle's vertex values Φ_h (for the plane z = z0: Φ + z0).
+pub fn plane_constraint(
+    mesh: &Mesh,
+    material: &Material,
+    phi: &[f64],
+    numbering: &DofNumbering,
+) -> Constraint {
     let layout = ShellLayout::new(mesh);
     let space = Space::new(mesh, Element::P1Bubble);
     let rule = TriangleRule::exact_for(5);
-    let phi = obstacle_at_vertices(mesh, chart, material);
     let half_eps = 0.5 * material.thickness;
     let mut c_full = Triplets::new(mesh.n_triangles(), layout.n_total());
     let mut obstacle = Vec::with_capacity(mesh.n_triangles());

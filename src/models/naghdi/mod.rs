@@ -1,6 +1,8 @@
 //! The Naghdi shell in Cartesian form (Blouza–Le Dret, SPEC §2): midsurface
 //! geometry, material, obstacle function ([`geometry`]); the forms a_ρ, b, c,
-//! L and the discrete Problem 9 as an algebraic problem ([`forms`]).
+//! L and the discrete Problem 9 as an algebraic problem ([`forms`]); the model
+//! as the pipeline runs it ([`system`]).
 
 pub mod forms;
 pub mod geometry;
+pub mod system;

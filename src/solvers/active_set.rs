@@ -1,0 +1,464 @@
+//! Primal–dual active set method (Hintermüller–Ito–Kunisch), i.e. the
+//! semismooth Newton method on the complementarity function
+//!
+//! ```text
+//!     A x − Cᵀλ = F,     λ − max(0, λ − c ḡ(x)) = 0,     ḡ_i = (C x − g)_i / w_i,
+//! ```
+//!
+//! on the full system (SPEC §3 "beyond the thesis"). Given the active set
+//! 𝒜_k = {i : λ_i − c_i ḡ_i > 0} of the previous iterate, step k solves
+//!
+//! ```text
+//!     [ A    −Cᵀ S ] [x]   [F  ]        active row i:   s_i (C x)_i = s_i g_i
+//!     [ Ĉ     D    ] [μ] = [ĝ  ]        inactive row i: d μ_i = 0,
+//! ```
+//!
+//! λ = S μ, with S = diag(s_i) a row (and multiplier) scaling that gives
+//! the constraint rows and multiplier columns the magnitude of A's entries
+//! (s_i = max|A| / max_j |C_ij|, d = max|A|): partial-pivoting LU then sees
+//! a balanced matrix also for the shell's saddle matrix. The matrix always
+//! holds all of C (below A) and a diagonal in the multiplier block, with
+//! explicit zeros for the entries the current active set switches off, so
+//! its pattern is fixed: the symbolic LU analysis is done once and each step
+//! is a numeric refactorisation only ([`ReusableLu`]), checked on a test
+//! solve and followed by one step of iterative refinement.
+//!
+//! **The constant c.** With an exact Newton step the active set after the
+//! first step does not depend on c (λ_i = 0 off the set and ḡ_i = 0 on it).
+//! c matters only when the caller gives an initial primal iterate: then
+//! c_i = 1/S̃_ii with S̃ = W⁻¹ C diag(A)⁻¹ Cᵀ, the Jacobi estimate of the
+//! mean-form dual operator, so that c_i ḡ_i is the multiplier change that
+//! would close the gap of constraint i alone (the units of λ). A scalar c
+//! can be given instead.
+//!
+//! **Start.** Without warm start the iteration starts from (x, λ) = (0, 0):
+//! 𝒜_1 = {i : g_i > 0} (constraints violated by x = 0). With
+//! `initial_lambda` only, 𝒜_1 = {λ⁰_i > 0}; with `initial_x` (and
+//! optionally `initial_lambda`), 𝒜_1 = {λ⁰_i − c_i ḡ_i(x⁰) > 0}. For nested
+//! iteration, pass the prolonged coarse solution.
+//!
+//! **Stopping.** Only on the relative KKT measure (`tol`). An active set that
+//! does not change while the KKT measure is above `tol` is stagnation (the
+//! linear solves are not accurate enough for `tol`); an active set seen at
+//! an earlier iteration is cycling (possible when A is not an M-matrix);
+//! both are errors that say so. `max_iter` gives a non-converged report.
+
+use super::measures::{kkt_measures, History, KktMeasures};
+use super::uzawa::solve_linear;
+use super::{ContactProblem, SolveReport};
+use crate::assembly::{mat_vec, norm_inf};
+use crate::error::{Error, Result};
+use crate::linalg::{factorize_checked, first_non_finite, solve_refined, ReusableLu};
+use crate::progress::IterationProgress;
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use std::time::Instant;
+
+/// Column names of the active-set history, in order. Row k is the iterate
+/// of Newton step k: `active` = |𝒜_k|, the set used in step k; `changes` =
+/// `added` + `removed` = |𝒜_k Δ 𝒜_{k−1}| (𝒜_0 = ∅); `linear_residual` =
+/// ‖b − Mz‖∞/‖b‖∞ of the Newton solve after refinement; `dual_step` =
+/// ‖λ^k − λ^{k−1}‖∞.
+pub const HISTORY_COLUMNS: [&str; 13] = [
+    "iteration",
+    "dual_step",
+    "penetration",
+    "dual_min",
+    "complementarity",
+    "stationarity",
+    "tangency",
+    "kkt",
+    "active",
+    "changes",
+    "added",
+    "removed",
+    "linear_residual",
+];
+
+#[derive(Debug, Clone)]
+pub struct ActiveSetOptions {
+    /// Bound on the relative KKT measure.
+    pub tol: f64,
+    /// Maximum number of Newton steps (linear solves).
+    pub max_iter: usize,
+    /// Scalar c of the active-set rule; None: c_i = 1/S̃_ii (module docs).
+    pub c: Option<f64>,
+    /// Warm start: the initial multiplier (length m).
+    pub initial_lambda: Option<Vec<f64>>,
+    /// Warm start: the initial x (length n), used with c.
+    pub initial_x: Option<Vec<f64>>,
+    /// Steps of iterative refinement after each solve.
+    pub refinement_steps: usize,
+    pub show_progress: bool,
+}
+
+impl Default for ActiveSetOptions {
+    fn default() -> Self {
+        ActiveSetOptions {
+            tol: 1e-10,
+            max_iter: 50,
+            c: None,
+            initial_lambda: None,
+            initial_x: None,
+            refinement_steps: 1,
+            show_progress: false,
+        }
+    }
+}
+
+const STAGE: &str = "primal-dual active set";
+
+/// The Newton matrix with its fixed pattern and the positions of the
+/// entries an active set switches.
+struct NewtonMatrix {
+    matrix: SparseColMat<usize, f64>,
+    /// For each constraint row i: (value position in the matrix, s_i C_ij)
+    /// of the entries of row n + i.
+    row_entries: Vec<Vec<(usize, f64)>>,
+    /// Value position of the diagonal entry (n + i, n + i).
+    diagonal: Vec<usize>,
+    /// The diagonal value d of inactive rows.
+    d: f64,
+    /// The scaling s_i (λ_i = s_i μ_i).
+    scale: Vec<f64>,
+}
+
+impl NewtonMatrix {
+    fn new(problem: &ContactProblem) -> Result<Self> {
+        let c = problem.constraint.as_ref().expect("a constrained problem");
+        let (n, m) = (problem.n(), c.obstacle.len());
+        let a = &problem.matrix;
+        let a_max = norm_inf(a.val()).max(f64::MIN_POSITIVE);
+        // Rows of C (the multiplier columns are −Cᵀ S).
+        let mut c_rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
+        let cs = c.matrix.symbolic();
+        for j in 0..c.matrix.ncols() {
+            for (i, v) in cs
+                .row_idx_of_col(j)
+                .zip(c.matrix.val_of_col(j).iter().copied())
+            {
+                c_rows[i].push((j, v));
+            }
+        }
+        let mut scale = Vec::with_capacity(m);
+        for (i, row) in c_rows.iter().enumerate() {
+            let row_max = row.iter().fold(0.0f64, |s, &(_, v)| s.max(v.abs()));
+            if row_max == 0.0 || !row_max.is_finite() {
+                return Err(Error::numerical(
+                    STAGE,
+                    "constraint matrix",
+                    format!("row {i} of C is empty or not finite"),
+                ));
+            }
+            scale.push(a_max / row_max);
+        }
+        // Columns 0..n: A's column, then the rows n + i of C's column j.
+        // Columns n..n+m: −s_i (row i of C)ᵀ, then the diagonal.
+        let nnz_c: usize = c_rows.iter().map(Vec::len).sum();
+        let nnz = a.val().len() + 2 * nnz_c + m;
+        let mut col_ptr = Vec::with_capacity(n + m + 1);
+        let mut row_idx = Vec::with_capacity(nnz);
+        let mut values = Vec::with_capacity(nnz);
+        let mut row_entries: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
+        col_ptr.push(0);
+        let as_ = a.symbolic();
+        for j in 0..n {
+            let mut col: Vec<(usize, f64)> = as_
+                .row_idx_of_col(j)
+                .zip(a.val_of_col(j).iter().copied())
+                .collect();
+            col.sort_by_key(|e| e.0);
+            for (r, v) in col {
+                row_idx.push(r);
+                values.push(v);
+            }
+            let mut cc: Vec<(usize, f64)> = cs
+                .row_idx_of_col(j)
+                .zip(c.matrix.val_of_col(j).iter().copied())
+                .collect();
+            cc.sort_by_key(|e| e.0);
+            for (i, v) in cc {
+                row_entries[i].push((values.len(), scale[i] * v));
+                row_idx.push(n + i);
+                values.push(0.0);
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let mut diagonal = Vec::with_capacity(m);
+        for (i, row) in c_rows.iter_mut().enumerate() {
+            row.sort_by_key(|e| e.0);
+            for &(j, v) in row.iter() {
+                row_idx.push(j);
+                values.push(-scale[i] * v);
+            }
+            diagonal.push(values.len());
+            row_idx.push(n + i);
+            values.push(a_max);
+            col_ptr.push(row_idx.len());
+        }
+        let symbolic = SymbolicSparseColMat::new_checked(n + m, n + m, col_ptr, None, row_idx);
+        Ok(NewtonMatrix {
+            matrix: SparseColMat::new(symbolic, values),
+            row_entries,
+            diagonal,
+            d: a_max,
+            scale,
+        })
+    }
+
+    /// Switches the constraint rows to the active set.
+    fn set_active(&mut self, active: &[bool]) {
+        let values = self.matrix.val_mut();
+        for (i, &on) in active.iter().enumerate() {
+            for &(pos, v) in &self.row_entries[i] {
+                values[pos] = if on { v } else { 0.0 };
+            }
+            values[self.diagonal[i]] = if on { 0.0 } else { self.d };
+        }
+    }
+}
+
+/// Solves a contact problem by the primal–dual active set method (module docs).
+pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
+    let start = Instant::now();
+    let Some(c) = problem.constraint.as_ref() else {
+        let t = Instant::now();
+        let f = factorize_checked(&problem.matrix, problem.kind, "system matrix")?;
+        let mut report = solve_linear(problem, &f, t.elapsed().as_secs_f64())?;
+        report.wall_seconds = start.elapsed().as_secs_f64();
+        return Ok(report);
+    };
+    let (n, m) = (problem.n(), c.obstacle.len());
+    for (name, len, want) in [
+        (
+            "initial_lambda",
+            options.initial_lambda.as_ref().map(Vec::len),
+            m,
+        ),
+        ("initial_x", options.initial_x.as_ref().map(Vec::len), n),
+    ] {
+        if let Some(len) = len.filter(|&l| l != want) {
+            return Err(Error::numerical(
+                STAGE,
+                name,
+                format!("length {len}, expected {want}"),
+            ));
+        }
+    }
+
+    // c_i: the scalar option, or the Jacobi estimate 1/S̃_ii.
+    let c_rule: Vec<f64> = match options.c {
+        Some(v) => vec![v; m],
+        None => jacobi_dual_diagonal(problem)
+            .into_iter()
+            .map(|s| if s > 0.0 { 1.0 / s } else { 1.0 })
+            .collect(),
+    };
+    if c_rule.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        return Err(Error::numerical(STAGE, "c", "must be finite and > 0"));
+    }
+
+    // The first active set.
+    let lambda0 = options
+        .initial_lambda
+        .clone()
+        .unwrap_or_else(|| vec![0.0; m]);
+    let mut active: Vec<bool> = match &options.initial_x {
+        Some(x0) => {
+            let cx = mat_vec(&c.matrix, x0);
+            (0..m)
+                .map(|i| lambda0[i] - c_rule[i] * c.mean_gap(&cx, i) > 0.0)
+                .collect()
+        }
+        None if options.initial_lambda.is_some() => lambda0.iter().map(|&l| l > 0.0).collect(),
+        None => c.obstacle.iter().map(|&g| g > 0.0).collect(),
+    };
+
+    let t = Instant::now();
+    let mut newton = NewtonMatrix::new(problem)?;
+    let mut lu = ReusableLu::analyze(&newton.matrix, "active-set Newton matrix")?;
+    let mut factor_seconds = t.elapsed().as_secs_f64();
+
+    let mut history = History::with_columns(&HISTORY_COLUMNS);
+    let mut progress = IterationProgress::new(
+        "Active set",
+        options.max_iter,
+        options.tol,
+        options.show_progress,
+    );
+    let mut seen: Vec<Vec<bool>> = Vec::new();
+    let mut previous = vec![false; m];
+    let mut lambda = lambda0;
+    let mut x = vec![0.0; n];
+    let mut measures = KktMeasures::default();
+    let mut iterations = 0;
+    let mut stop_reason = "max_iter";
+    let mut max_linear_residual = 0.0f64;
+    let mut rhs = vec![0.0; n + m];
+    for k in 1..=options.max_iter {
+        iterations = k;
+        newton.set_active(&active);
+        let t = Instant::now();
+        let (factorization, _) = lu.factorize(&newton.matrix, "active-set Newton matrix")?;
+        factor_seconds += t.elapsed().as_secs_f64();
+        rhs[..n].copy_from_slice(&problem.rhs);
+        for i in 0..m {
+            rhs[n + i] = if active[i] {
+                newton.scale[i] * c.obstacle[i]
+            } else {
+                0.0
+            };
+        }
+        let mut z = rhs.clone();
+        let linear_residual = solve_refined(
+            &newton.matrix,
+            &factorization,
+            &mut z,
+            options.refinement_steps,
+        );
+        max_linear_residual = max_linear_residual.max(linear_residual);
+        if let Some(i) = first_non_finite(&z) {
+            return Err(Error::numerical(
+                STAGE,
+                "Newton step",
+                format!("non-finite value at index {i} in iteration {k}"),
+            ));
+        }
+        x.copy_from_slice(&z[..n]);
+        let new_lambda: Vec<f64> = (0..m)
+            .map(|i| {
+                if active[i] {
+                    newton.scale[i] * z[n + i]
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let dual_step = new_lambda
+            .iter()
+            .zip(&lambda)
+            .fold(0.0f64, |s, (a, b)| s.max((a - b).abs()));
+        lambda = new_lambda;
+        let cx = mat_vec(&c.matrix, &x);
+        measures = kkt_measures(problem, &x, &lambda, Some(&cx));
+        let added = (0..m).filter(|&i| active[i] && !previous[i]).count();
+        let removed = (0..m).filter(|&i| !active[i] && previous[i]).count();
+        history.push(&[
+            k as f64,
+            dual_step,
+            measures.penetration,
+            measures.dual_min,
+            measures.complementarity,
+            measures.stationarity,
+            measures.tangency,
+            measures.kkt,
+            active.iter().filter(|&&a| a).count() as f64,
+            (added + removed) as f64,
+            added as f64,
+            removed as f64,
+            linear_residual,
+        ]);
+        progress.update(k, measures.kkt, dual_step);
+        if measures.kkt <= options.tol {
+            stop_reason = "kkt";
+            break;
+        }
+        // The next active set.
+        let next: Vec<bool> = (0..m)
+            .map(|i| lambda[i] - c_rule[i] * c.mean_gap(&cx, i) > 0.0)
+            .collect();
+        if next == active {
+            progress.finish();
+            return Err(Error::numerical(
+                STAGE,
+                "KKT measure",
+                format!(
+                    "stagnation at iteration {k}: the active set ({} constraints) did not change but the relative KKT measure is {:.3e} > tol {:.1e} (linear residual {linear_residual:.1e}): the tolerance is below the accuracy of the linear solves",
+                    count(&active),
+                    measures.kkt,
+                    options.tol
+                ),
+            ));
+        }
+        seen.push(active.clone());
+        if let Some(j) = seen.iter().position(|s| *s == next) {
+            progress.finish();
+            return Err(Error::numerical(
+                STAGE,
+                "active set 𝒜",
+                format!(
+                    "cycling at iteration {k}: the next active set ({} constraints) is the one of iteration {} (relative KKT measure {:.3e}); the semismooth Newton iteration is not globally convergent for this matrix, try a warm start or another solver",
+                    count(&next),
+                    j + 1,
+                    measures.kkt
+                ),
+            ));
+        }
+        previous = std::mem::replace(&mut active, next);
+    }
+    progress.finish();
+    let c_min = c_rule.iter().cloned().fold(f64::INFINITY, f64::min);
+    let c_max = c_rule.iter().cloned().fold(0.0, f64::max);
+    Ok(SolveReport {
+        algorithm: "active-set".into(),
+        x,
+        lambda,
+        iterations,
+        converged: measures.kkt <= options.tol,
+        stop_reason: stop_reason.into(),
+        measures,
+        history,
+        factor_seconds,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        parameters: vec![
+            ("tol".into(), options.tol),
+            ("c_min".into(), c_min),
+            ("c_max".into(), c_max),
+            ("symbolic_analyses".into(), lu.symbolic_analyses() as f64),
+            (
+                "numeric_factorizations".into(),
+                lu.numeric_factorizations() as f64,
+            ),
+            ("max_linear_residual".into(), max_linear_residual),
+        ],
+    })
+}
+
+fn count(set: &[bool]) -> usize {
+    set.iter().filter(|&&a| a).count()
+}
+
+/// S̃_ii = (1/w_i) Σ_j C_ij² / |A_jj|: the diagonal of the mean-form dual
+/// operator W⁻¹ C A⁻¹ Cᵀ with A replaced by its diagonal (0 where C's row
+/// meets no nonzero diagonal entry).
+pub fn jacobi_dual_diagonal(problem: &ContactProblem) -> Vec<f64> {
+    let Some(c) = problem.constraint.as_ref() else {
+        return Vec::new();
+    };
+    let a = &problem.matrix;
+    let diag: Vec<f64> = (0..a.ncols())
+        .map(|j| {
+            a.symbolic()
+                .row_idx_of_col(j)
+                .zip(a.val_of_col(j))
+                .filter(|(r, _)| *r == j)
+                .map(|(_, v)| v.abs())
+                .sum()
+        })
+        .collect();
+    let mut s = vec![0.0; c.obstacle.len()];
+    for j in 0..c.matrix.ncols() {
+        if diag[j] == 0.0 {
+            continue;
+        }
+        for (i, v) in c
+            .matrix
+            .symbolic()
+            .row_idx_of_col(j)
+            .zip(c.matrix.val_of_col(j))
+        {
+            s[i] += v * v / diag[j];
+        }
+    }
+    s.iter_mut().zip(&c.weights).for_each(|(si, w)| *si /= w);
+    s
+}

@@ -1,0 +1,223 @@
+//! Fields of one mesh measured on another: the relative L²(ω) error of a
+//! coarse solution against a reference on a finer mesh (thesis Fig. 5.10),
+//! component by component.
+//!
+//! The coarse function is evaluated at the quadrature points of the fine
+//! mesh (a [`PointLocator`] finds the coarse triangle), so the meshes need
+//! not be nested; on nested meshes the rule is exact for the polynomial
+//! difference (degree 5 is exact for (P1⊕B3)²).
+
+use crate::assembly::quad_points;
+use crate::error::{Error, Result};
+use crate::mesh::{Mesh, PointLocator};
+use crate::output::ResultFile;
+use crate::quadrature::TriangleRule;
+use crate::space::{Element, Space, TriangleGeometry};
+use std::path::{Path, PathBuf};
+
+/// One scalar component of a stored coefficient vector.
+pub struct Component<'a> {
+    pub name: String,
+    pub element: Element,
+    pub coefficients: &'a [f64],
+}
+
+/// Splits `/dofs/<name>` of a result into its scalar components, telling the
+/// element from the length: k·(Nv + Nt) is k blocks of P1⊕B3 (named
+/// name1..namek when k > 1), Nt is P0, Nv is P1.
+pub fn components<'a>(
+    name: &str,
+    dofs: &'a [f64],
+    n_vertices: usize,
+    n_triangles: usize,
+) -> Option<Vec<Component<'a>>> {
+    let n_scalar = n_vertices + n_triangles;
+    let single = |element| {
+        Some(vec![Component {
+            name: name.to_string(),
+            element,
+            coefficients: dofs,
+        }])
+    };
+    if dofs.len() == n_triangles {
+        single(Element::P0)
+    } else if dofs.len() == n_vertices {
+        single(Element::P1)
+    } else if !dofs.is_empty() && dofs.len().is_multiple_of(n_scalar) {
+        let k = dofs.len() / n_scalar;
+        Some(
+            (0..k)
+                .map(|c| Component {
+                    name: if k == 1 {
+                        name.to_string()
+                    } else {
+                        format!("{name}{}", c + 1)
+                    },
+                    element: Element::P1Bubble,
+                    coefficients: &dofs[c * n_scalar..(c + 1) * n_scalar],
+                })
+                .collect(),
+        )
+    } else {
+        None
+    }
+}
+
+/// ‖f_coarse − f_fine‖_{L²} / ‖f_fine‖_{L²}, both integrated over the fine mesh.
+pub fn relative_l2_error(
+    coarse: &Space,
+    coarse_c: &[f64],
+    locator: &PointLocator,
+    fine: &Space,
+    fine_c: &[f64],
+) -> f64 {
+    let rule = TriangleRule::exact_for(5);
+    let mesh = fine.mesh;
+    let (mut diff, mut norm) = (0.0, 0.0);
+    for t in 0..mesh.n_triangles() {
+        let g = TriangleGeometry::new(mesh, t);
+        for q in quad_points(&g, t, &rule) {
+            let f = fine.evaluate(fine_c, t, q.lambda);
+            let c = locator
+                .locate(q.x)
+                .map_or(0.0, |(tc, l)| coarse.evaluate(coarse_c, tc, l));
+            diff += q.weight * (c - f) * (c - f);
+            norm += q.weight * f * f;
+        }
+    }
+    if norm > 0.0 {
+        (diff / norm).sqrt()
+    } else {
+        diff.sqrt()
+    }
+}
+
+/// A result file's mesh (vertices and triangles only).
+pub fn result_mesh(file: &ResultFile, path: &Path) -> Result<Mesh> {
+    Mesh::from_triangles(
+        file.vertices.clone(),
+        file.triangles.clone(),
+        PathBuf::from(path),
+    )
+}
+
+/// Relative L² errors of every component of the fields `names` of `coarse`
+/// against `fine`, in order (u → u1, u2, u3, ...).
+pub fn relative_errors(
+    coarse: (&ResultFile, &Path),
+    fine: (&ResultFile, &Path),
+    names: &[String],
+) -> Result<Vec<(String, f64)>> {
+    let (coarse_mesh, fine_mesh) = (
+        result_mesh(coarse.0, coarse.1)?,
+        result_mesh(fine.0, fine.1)?,
+    );
+    let locator = PointLocator::new(&coarse_mesh);
+    let mut out = Vec::new();
+    for name in names {
+        let cs = stored_components(coarse.0, coarse.1, &coarse_mesh, name)?;
+        let fs = stored_components(fine.0, fine.1, &fine_mesh, name)?;
+        for (c, f) in cs.iter().zip(&fs) {
+            let e = relative_l2_error(
+                &Space::new(&coarse_mesh, c.element),
+                c.coefficients,
+                &locator,
+                &Space::new(&fine_mesh, f.element),
+                f.coefficients,
+            );
+            out.push((c.name.clone(), e));
+        }
+    }
+    Ok(out)
+}
+
+/// The components of `/dofs/<name>` of a result on its mesh.
+fn stored_components<'a>(
+    file: &'a ResultFile,
+    path: &Path,
+    mesh: &Mesh,
+    name: &str,
+) -> Result<Vec<Component<'a>>> {
+    let (_, v) = file
+        .data
+        .dofs
+        .iter()
+        .find(|(n, _)| n == name)
+        .ok_or_else(|| Error::output(path, format!("has no /dofs/{name}")))?;
+    components(name, v, mesh.n_vertices(), mesh.n_triangles()).ok_or_else(|| {
+        Error::output(
+            path,
+            format!(
+                "/dofs/{name} has {} values: not P0, P1 or P1⊕B3 blocks on this mesh",
+                v.len()
+            ),
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn square(n: usize) -> Mesh {
+        let mut vertices = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                vertices.push([i as f64 / n as f64, j as f64 / n as f64]);
+            }
+        }
+        let id = |i: usize, j: usize| j * (n + 1) + i;
+        let mut triangles = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        Mesh::from_triangles(vertices, triangles, "sq".into()).unwrap()
+    }
+
+    /// A P1⊕B3 interpolant of an affine function is the same function on any
+    /// mesh (error 0); of a quadratic, the error falls like h².
+    #[test]
+    fn errors_across_meshes() {
+        let (coarse, fine) = (square(4), square(16));
+        let locator = PointLocator::new(&coarse);
+        let (cs, fs) = (
+            Space::new(&coarse, Element::P1Bubble),
+            Space::new(&fine, Element::P1Bubble),
+        );
+        let affine = |x: [f64; 2]| 1.0 + 2.0 * x[0] - x[1];
+        let e = relative_l2_error(
+            &cs,
+            &cs.interpolate(affine),
+            &locator,
+            &fs,
+            &fs.interpolate(affine),
+        );
+        assert!(e < 1e-14, "{e}");
+        let quad = |x: [f64; 2]| x[0] * x[0] + x[1] * x[1];
+        let fine_c = fs.interpolate(quad);
+        let e4 = relative_l2_error(&cs, &cs.interpolate(quad), &locator, &fs, &fine_c);
+        let mid = square(8);
+        let ms = Space::new(&mid, Element::P1Bubble);
+        let e8 = relative_l2_error(
+            &ms,
+            &ms.interpolate(quad),
+            &PointLocator::new(&mid),
+            &fs,
+            &fine_c,
+        );
+        let rate = (e4 / e8).log2();
+        assert!(rate > 1.8 && rate < 2.3, "rate {rate} ({e4:e} → {e8:e})");
+        // P0 and the component split by length.
+        let lambda = vec![0.0; 32];
+        let c = components("lambda", &lambda, 25, 32).unwrap();
+        assert_eq!(c[0].element, Element::P0);
+        let v = vec![0.0; 3 * 57];
+        let c = components("u", &v, 25, 32).unwrap();
+        assert_eq!(c.len(), 3);
+        assert_eq!(c[2].name, "u3");
+        assert!(components("x", &[0.0; 7], 25, 32).is_none());
+    }
+}
