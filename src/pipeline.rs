@@ -10,10 +10,13 @@ use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
 use crate::output::{write_result, AttrValue, Location, ResultData};
 use crate::plot;
-use crate::scene::{Alpha, Model, PlotKind, Scene, StepForm};
+use crate::scene::{Alpha, Method, Model, PlotKind, Scene, StepForm};
+use crate::solvers::active_set::{active_set, ActiveSetOptions};
+use crate::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
+use crate::solvers::uzawa_split::{uzawa_split, UzawaSplitOptions};
 use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
-use crate::solvers::{History, KktMeasures, SolveReport};
+use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -108,51 +111,8 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     };
     let problem = system.assemble(scene)?;
 
-    // One factorisation, reused by every iteration.
-    let t = Instant::now();
-    let what = match problem.kind {
-        MatrixKind::SymmetricPositiveDefinite => "stiffness matrix",
-        MatrixKind::General => "saddle-point matrix [[K_ρ, Bᵀ], [B, 0]]",
-    };
-    let factorization = factorize_checked(&problem.matrix, problem.kind, what)?;
-    let factor_seconds = t.elapsed().as_secs_f64();
-
-    let solver = &scene.solver;
-    let (report, alpha, spectrum): (SolveReport, Option<f64>, Option<SpectrumEstimate>) =
-        match &problem.constraint {
-            None => (
-                solve_linear(&problem, &factorization, factor_seconds)?,
-                None,
-                None,
-            ),
-            Some(_) => {
-                let step_form = solver.step_form.unwrap_or(StepForm::Mean);
-                let spectrum = estimate_dual_spectrum(&problem, &factorization, step_form, 50);
-                let alpha =
-                    choose_alpha(solver.alpha.expect("validated with an obstacle"), spectrum);
-                let options = UzawaOptions {
-                    alpha,
-                    step_form,
-                    max_iter: solver.max_iter as usize,
-                    tol: solver.tol,
-                    stop: solver.stop,
-                    thesis_tol: solver.thesis_tol,
-                    dual_norm: solver.dual_norm,
-                    show_progress,
-                };
-                (
-                    uzawa(
-                        &problem,
-                        &factorization,
-                        factor_seconds,
-                        &options,
-                        &system.probes(),
-                    )?,
-                    Some(alpha),
-                    spectrum,
-                )
-            }
-        };
+    // The solver the scene names; without an obstacle, one linear solve.
+    let (report, alpha, spectrum) = solve(scene, &problem, system.as_ref(), show_progress)?;
 
     let mut data = system.results(scene, &problem, &report);
     let errors = if scene.output.errors {
@@ -186,6 +146,83 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         wall_seconds: start.elapsed().as_secs_f64(),
         result_file: out.to_path_buf(),
     })
+}
+
+/// Runs the scene's solver on the problem. Uzawa and the linear solve share
+/// the one factorisation done here; the other methods factorise what they need.
+fn solve(
+    scene: &Scene,
+    problem: &ContactProblem,
+    system: &dyn ModelSystem,
+    show_progress: bool,
+) -> Result<(SolveReport, Option<f64>, Option<SpectrumEstimate>)> {
+    let solver = &scene.solver;
+    let max_iter = solver.max_iter as usize;
+    if problem.constraint.is_some() && solver.method != Method::Uzawa {
+        let report = match solver.method {
+            Method::ActiveSet => active_set(
+                problem,
+                &ActiveSetOptions {
+                    tol: solver.tol,
+                    max_iter,
+                    show_progress,
+                    ..Default::default()
+                },
+            )?,
+            Method::DualAccelerated => dual_accelerated(
+                problem,
+                &DualAcceleratedOptions {
+                    tol: solver.tol,
+                    max_iter,
+                    show_progress,
+                    ..Default::default()
+                },
+            )?,
+            Method::UzawaSplit => uzawa_split(
+                problem,
+                &UzawaSplitOptions {
+                    tol: solver.tol,
+                    max_iter,
+                    show_progress,
+                    ..Default::default()
+                },
+            )?,
+            Method::Uzawa => unreachable!("handled below"),
+        };
+        return Ok((report, None, None));
+    }
+    // One factorisation, reused by every iteration.
+    let t = Instant::now();
+    let what = match problem.kind {
+        MatrixKind::SymmetricPositiveDefinite => "stiffness matrix",
+        MatrixKind::General => "saddle-point matrix [[K_ρ, Bᵀ], [B, 0]]",
+    };
+    let factorization = factorize_checked(&problem.matrix, problem.kind, what)?;
+    let factor_seconds = t.elapsed().as_secs_f64();
+    if problem.constraint.is_none() {
+        return Ok((solve_linear(problem, &factorization, factor_seconds)?, None, None));
+    }
+    let step_form = solver.step_form.unwrap_or(StepForm::Mean);
+    let spectrum = estimate_dual_spectrum(problem, &factorization, step_form, 50);
+    let alpha = choose_alpha(solver.alpha.expect("validated with an obstacle"), spectrum);
+    let options = UzawaOptions {
+        alpha,
+        step_form,
+        max_iter,
+        tol: solver.tol,
+        stop: solver.stop,
+        thesis_tol: solver.thesis_tol,
+        dual_norm: solver.dual_norm,
+        show_progress,
+    };
+    let report = uzawa(
+        problem,
+        &factorization,
+        factor_seconds,
+        &options,
+        &system.probes(),
+    )?;
+    Ok((report, Some(alpha), spectrum))
 }
 
 /// The plots the scene asks for, beside the result file; nothing else is drawn.
@@ -326,6 +363,7 @@ fn record_solver(
     let s = &scene.solver;
     let mut attrs: Vec<(String, AttrValue)> = vec![
         ("algorithm".into(), AttrValue::Str(report.algorithm.clone())),
+        ("method".into(), AttrValue::Str(s.method.name().into())),
         (
             "iterations".into(),
             AttrValue::I64(report.iterations as i64),
@@ -366,8 +404,12 @@ fn record_solver(
             AttrValue::Str(format!("{f:?}").to_lowercase()),
         ));
     }
+    // The solver's own parameters and estimates; a name the scene already
+    // gave (e.g. tol) keeps the scene's value.
     for (name, v) in &report.parameters {
-        attrs.push((name.clone(), AttrValue::F64(*v)));
+        if !attrs.iter().any(|(n, _)| n == name) {
+            attrs.push((name.clone(), AttrValue::F64(*v)));
+        }
     }
     if let Some(sp) = spectrum {
         attrs.push(("s_max_estimate".into(), AttrValue::F64(sp.s_max)));

@@ -220,14 +220,24 @@ fn default_thesis_tol() -> f64 {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
-    /// The thesis' Uzawa iteration (Algorithm 1, SPEC §3).
+    /// The thesis' Uzawa iteration (Algorithm 1, "second splitting", SPEC §3).
     Uzawa,
+    /// The thesis' Ch. 4 "first splitting": Richardson on ψ and λ.
+    UzawaSplit,
+    /// FISTA with restart on the dual problem, one solve per iteration.
+    DualAccelerated,
+    /// Primal–dual active set (semismooth Newton): the exact discrete solution
+    /// in few linear solves.
+    ActiveSet,
 }
 
 impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::Uzawa => "uzawa",
+            Method::UzawaSplit => "uzawa-split",
+            Method::DualAccelerated => "dual-accelerated",
+            Method::ActiveSet => "active-set",
         }
     }
 }
@@ -446,7 +456,7 @@ impl Scene {
         if let Some(Alpha::Value(a)) = s.alpha {
             positive("solver.alpha", a)?;
         }
-        if self.obstacle.is_some() {
+        if self.obstacle.is_some() && s.method == Method::Uzawa {
             if s.alpha.is_none() {
                 return Err(self.error(
                     "solver.alpha",
