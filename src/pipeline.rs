@@ -4,7 +4,7 @@
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::linalg::{factorize_checked, MatrixKind};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
@@ -102,17 +102,30 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir)
         .map_err(|e| Error::output(dir, format!("cannot create the output folder: {e}")))?;
-    let mesh = scene_mesh(scene, &out.with_extension("msh"))?;
+    // The mesh is written under a temporary name and renamed beside the
+    // result only when the run succeeds: a failed run never clobbers FILE.msh.
+    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
+    let msh_tmp = tempfile::Builder::new()
+        .prefix(&format!("{stem}."))
+        .suffix(".msh.partial")
+        .tempfile_in(dir)
+        .map_err(|e| Error::output(dir, format!("cannot create a temporary mesh file: {e}")))?
+        .into_temp_path();
+    let mesh = scene_mesh(scene, &msh_tmp)?;
 
     // Setup and assembly of the scene's model.
-    let system: Box<dyn ModelSystem + '_> = match scene.model {
-        Model::Membrane => Box::new(MembraneSystem::setup(&mesh, scene)?),
-        Model::Naghdi => Box::new(NaghdiSystem::setup(&mesh, scene)?),
-    };
+    let system = setup_model(scene, &mesh)?;
     let problem = system.assemble(scene)?;
 
     // The solver the scene names; without an obstacle, one linear solve.
-    let (report, alpha, spectrum) = solve(scene, &problem, system.as_ref(), show_progress)?;
+    let start_lambda = nested_start(scene, &mesh)?;
+    let (report, alpha, spectrum) = solve(
+        scene,
+        &problem,
+        system.as_ref(),
+        start_lambda,
+        show_progress,
+    )?;
 
     let mut data = system.results(scene, &problem, &report);
     let errors = if scene.output.errors {
@@ -122,6 +135,14 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     };
     record_solver(&mut data, scene, &report, spectrum);
     write_result(out, &mesh, &data)?;
+    if scene.mesh.file.is_none() {
+        let msh = out.with_extension("msh");
+        msh_tmp
+            .persist(&msh)
+            .map_err(|e| Error::output(&msh, format!("cannot write the mesh file: {e}")))?;
+        use std::os::unix::fs::PermissionsExt;
+        let _ = std::fs::set_permissions(&msh, std::fs::Permissions::from_mode(0o644));
+    }
     write_plots(scene, out, &mesh, &data, &report, errors.as_ref())?;
     Ok(RunSummary {
         scene: scene.name.clone(),
@@ -148,12 +169,59 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     })
 }
 
+/// The scene's model set up on the mesh.
+fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSystem + 'm>> {
+    Ok(match scene.model {
+        Model::Membrane => Box::new(MembraneSystem::setup(mesh, scene)?),
+        Model::Naghdi => Box::new(NaghdiSystem::setup(mesh, scene)?),
+    })
+}
+
+/// Nested iteration (`solver.nested`): the scene solved on the mesh with
+/// n/2 (itself nested, down to n < 8), its P0 multiplier carried to this
+/// mesh triangle by triangle (the coarse value at each centroid). None when
+/// not asked for, when there is no coarser level, or without contact.
+fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
+    let (true, Some(n), Some(_)) = (scene.solver.nested, scene.mesh.n, &scene.obstacle) else {
+        return Ok(None);
+    };
+    if n < 8 || n % 2 != 0 {
+        return Ok(None);
+    }
+    let mut coarse = scene.clone();
+    coarse.mesh.n = Some(n / 2);
+    let dir = tempfile::tempdir()
+        .map_err(|e| Error::output(std::env::temp_dir(), format!("cannot create a temporary folder: {e}")))?;
+    let coarse_mesh = scene_mesh(&coarse, &dir.path().join("coarse.msh"))?;
+    let system = setup_model(&coarse, &coarse_mesh)?;
+    let problem = system.assemble(&coarse)?;
+    if problem.n_multipliers() != coarse_mesh.n_triangles() {
+        return Ok(None); // not a P0 multiplier: no triangle-wise transfer
+    }
+    let start = nested_start(&coarse, &coarse_mesh)?;
+    let (report, _, _) = solve(&coarse, &problem, system.as_ref(), start, false)?;
+    let locator = PointLocator::new(&coarse_mesh);
+    let lambda = mesh
+        .triangles
+        .iter()
+        .map(|tri| {
+            let c = tri.iter().fold([0.0, 0.0], |c, &v| {
+                [c[0] + mesh.vertices[v][0] / 3.0, c[1] + mesh.vertices[v][1] / 3.0]
+            });
+            locator.locate(c).map_or(0.0, |(t, _)| report.lambda[t])
+        })
+        .collect();
+    Ok(Some(lambda))
+}
+
 /// Runs the scene's solver on the problem. Uzawa and the linear solve share
-/// the one factorisation done here; the other methods factorise what they need.
+/// the one factorisation done here; the other methods factorise what they
+/// need. `start_lambda` warm-starts the methods that take one.
 fn solve(
     scene: &Scene,
     problem: &ContactProblem,
     system: &dyn ModelSystem,
+    start_lambda: Option<Vec<f64>>,
     show_progress: bool,
 ) -> Result<(SolveReport, Option<f64>, Option<SpectrumEstimate>)> {
     let solver = &scene.solver;
@@ -166,6 +234,7 @@ fn solve(
                     tol: solver.tol,
                     max_iter,
                     show_progress,
+                    initial_lambda: start_lambda,
                     ..Default::default()
                 },
             )?,
@@ -175,6 +244,7 @@ fn solve(
                     tol: solver.tol,
                     max_iter,
                     show_progress,
+                    initial_lambda: start_lambda,
                     ..Default::default()
                 },
             )?,
@@ -204,7 +274,18 @@ fn solve(
     }
     let step_form = solver.step_form.unwrap_or(StepForm::Mean);
     let spectrum = estimate_dual_spectrum(problem, &factorization, step_form, 50);
-    let alpha = choose_alpha(solver.alpha.expect("validated with an obstacle"), spectrum);
+    let alpha = match (solver.alpha_factor, spectrum) {
+        // α as a multiple of the stability bound 2/s_max (hard cases).
+        (Some(factor), Some(s)) => factor * 2.0 / s.s_max,
+        (Some(_), None) => {
+            return Err(Error::numerical(
+                "Uzawa",
+                "solver.alpha_factor",
+                "no estimate of s_max (no constraint rows): give `alpha` instead",
+            ))
+        }
+        (None, _) => choose_alpha(solver.alpha.expect("validated with an obstacle"), spectrum),
+    };
     let options = UzawaOptions {
         alpha,
         step_form,

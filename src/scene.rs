@@ -189,6 +189,10 @@ pub struct SolverSpec {
     /// Dual step: a positive number, or "auto" (Lanczos estimate of s_max).
     #[serde(default)]
     pub alpha: Option<Alpha>,
+    /// Uzawa's α as a multiple of the stability bound 2/s_max (Lanczos
+    /// estimate), instead of `alpha`: 0.5 is safe, above 1 diverges.
+    #[serde(default)]
+    pub alpha_factor: Option<f64>,
     #[serde(default)]
     pub step_form: Option<StepForm>,
     #[serde(default = "default_max_iter")]
@@ -205,6 +209,11 @@ pub struct SolverSpec {
     /// The norm of the thesis criterion.
     #[serde(default)]
     pub dual_norm: DualNorm,
+    /// Nested iteration: start from the solution on the mesh with n/2
+    /// (recursively, down to n < 8), for methods that take a warm start
+    /// (active-set, dual-accelerated). Needs a structured mesh (`mesh.n`).
+    #[serde(default)]
+    pub nested: bool,
 }
 
 fn default_max_iter() -> i64 {
@@ -456,11 +465,32 @@ impl Scene {
         if let Some(Alpha::Value(a)) = s.alpha {
             positive("solver.alpha", a)?;
         }
+        if let Some(f) = s.alpha_factor {
+            positive("solver.alpha_factor", f)?;
+            if f > 100.0 {
+                return Err(self.error(
+                    "solver.alpha_factor",
+                    format!("a multiple of the stability bound 2/s_max must be ≤ 100, got {f}"),
+                ));
+            }
+            if s.alpha.is_some() {
+                return Err(self.error(
+                    "solver.alpha_factor",
+                    "give either `alpha` or `alpha_factor` (α = factor × 2/s_max), not both",
+                ));
+            }
+            if s.method != Method::Uzawa {
+                return Err(self.error(
+                    "solver.alpha_factor",
+                    format!("only Uzawa takes a fixed step, not method = \"{}\"", s.method.name()),
+                ));
+            }
+        }
         if self.obstacle.is_some() && s.method == Method::Uzawa {
-            if s.alpha.is_none() {
+            if s.alpha.is_none() && s.alpha_factor.is_none() {
                 return Err(self.error(
                     "solver.alpha",
-                    "Uzawa needs a step: a number > 0 or \"auto\"",
+                    "Uzawa needs a step: a number > 0, \"auto\", or alpha_factor = a multiple of 2/s_max",
                 ));
             }
             if s.step_form.is_none() {
@@ -477,6 +507,20 @@ impl Scene {
             ));
         }
         positive("solver.tol", s.tol)?;
+        if s.nested {
+            if !matches!(s.method, Method::ActiveSet | Method::DualAccelerated) {
+                return Err(self.error(
+                    "solver.nested",
+                    "nested iteration warm-starts active-set or dual-accelerated only",
+                ));
+            }
+            if self.mesh.n.is_none() || self.mesh.geo.is_none() {
+                return Err(self.error(
+                    "solver.nested",
+                    "nested iteration needs a structured gmsh mesh (`mesh.geo` with `mesh.n`)",
+                ));
+            }
+        }
         positive("solver.thesis_tol", s.thesis_tol)?;
         Ok(())
     }
