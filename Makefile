@@ -52,3 +52,107 @@ test: deps
 
 clean:
 	rm -rf $(BUILD)
+
+# Issue 6: the hard cases (pipelines/scenes/hard/, docs/hard-cases.md) as one
+# table: case, outcome, iterations, KKT measures, condition estimate, time.
+# The contact scene on the largest mesh: HARD_LARGE_N subdivisions per side.
+.PHONY: hard
+HARD_LARGE_N ?= 96
+hard: build
+	$(BIN) hard pipelines/scenes/hard --set mesh-large:mesh.n=$(HARD_LARGE_N) --out-dir $(BUILD)/hard
+
+# Issue 4: the FreeFEM cross-check (freefem/*.edp, `obstacle freefem`, `obstacle compare`).
+#   make freefem SCENE=... [SET="mesh.n=32"]   the scene's FreeFEM twin → build/freefem/<name>.h5
+#   make compare SCENE=... [SET=...] [K=100]   Rust and FreeFEM, exactly K Uzawa iterations each, compared
+#   make compare-all                           every thesis scene both ways, one table
+#   make freefem-timings                       Rust vs FreeFEM time, same mesh/algorithm/K
+.PHONY: freefem compare compare-all freefem-timings
+FREEFEM_OUT := $(BUILD)/freefem
+K ?= 100
+RTOL ?= 1e-8
+# Exactly K iterations on both sides: the thesis stop with a tolerance never met; no plots.
+FIXED_K = --set solver.stop=thesis --set solver.thesis_tol=1e-300 --set solver.max_iter=$(K) --set 'output.plots=[]'
+FF_SETS = $(foreach s,$(SET),--set $(s))
+FF_NAME = $(basename $(notdir $(SCENE)))
+# scene:override (empty override: the scene as it is)
+COMPARE_CASES = obstacle-disk:element=p1b-p0 obstacle-disk:element=p2-p1 naghdi-hypar: naghdi-hypar-free:
+TIMING_CASES = naghdi-hypar:mesh.n=16 naghdi-hypar:mesh.n=32 naghdi-hypar:mesh.n=64 obstacle-disk:mesh.n=16
+# The shell helpers of the two tables: wall clock, one /solver attribute of a result.
+FF_SH = now() { date +%s.%N; }; \
+	attr() { $(BIN) info "$$1" | awk -v k="$$2" '$$1 == k { print $$3; exit }'; }; \
+	calc() { awk "BEGIN { printf \"$$1\", $$2 }"; }
+
+freefem: build
+	@mkdir -p $(FREEFEM_OUT)
+	$(BIN) freefem $(SCENE) $(FF_SETS) --out $(FREEFEM_OUT)/$(FF_NAME).h5
+
+compare: build
+	@mkdir -p $(FREEFEM_OUT)
+	$(BIN) solve $(SCENE) $(FF_SETS) $(FIXED_K) --quiet --out $(FREEFEM_OUT)/$(FF_NAME).rust.h5
+	$(BIN) freefem $(SCENE) $(FF_SETS) $(FIXED_K) --out $(FREEFEM_OUT)/$(FF_NAME).h5
+	$(BIN) compare $(FREEFEM_OUT)/$(FF_NAME).rust.h5 $(FREEFEM_OUT)/$(FF_NAME).h5 --rtol $(RTOL)
+
+# Difference: the larger of max|A−B|/max|A| and ‖A−B‖_L²/‖A‖_L²; times: whole processes.
+compare-all: build
+	@mkdir -p $(FREEFEM_OUT); $(FF_SH); status=0; \
+	echo "K = $(K) Uzawa iterations on both sides"; \
+	echo "| scene | field | difference | tolerance | Rust time (s) | FreeFEM time (s) |"; \
+	echo "|---|---|---:|---:|---:|---:|"; \
+	for c in $(COMPARE_CASES); do \
+	  scene=$${c%%:*}; set=$${c#*:}; label="$$scene$${set:+ $$set}"; \
+	  out=$(FREEFEM_OUT)/$$scene$${set:+-$${set#*=}}; sets=$${set:+--set $$set}; \
+	  t0=$$(now); \
+	  $(BIN) solve pipelines/scenes/$$scene.toml $$sets $(FIXED_K) --quiet --out $$out.rust.h5 \
+	    > $$out.rust.log 2>&1 || { echo "$$label: Rust run failed, see $$out.rust.log"; status=1; continue; }; \
+	  t1=$$(now); \
+	  $(BIN) freefem pipelines/scenes/$$scene.toml $$sets $(FIXED_K) --out $$out.h5 \
+	    > $$out.log 2>&1 || { echo "$$label: FreeFEM run failed, see $$out.log"; status=1; continue; }; \
+	  t2=$$(now); rt=$$(calc %.2f "$$t1 - $$t0"); ft=$$(calc %.2f "$$t2 - $$t1"); \
+	  rows=$$($(BIN) compare $$out.rust.h5 $$out.h5 --rtol $(RTOL) --row "$$label" 2>&1) || status=1; \
+	  echo "$$rows" | sed "s/^\(| .*|\)$$/\1 $$rt | $$ft |/"; \
+	done; exit $$status
+
+# Per iteration: Rust (solver time − factorisation)/K, KKT measures included;
+# FreeFEM its loop, timed inside the script. Whole: the processes (mesh to file).
+freefem-timings: build
+	@mkdir -p $(FREEFEM_OUT); $(FF_SH); \
+	echo "K = $(K) Uzawa iterations, same mesh, same α"; \
+	echo "| case | vertices / triangles | Rust whole (s) | FreeFEM whole (s) | Rust per iteration (ms) | FreeFEM per iteration (ms) | FreeFEM / Rust per iteration |"; \
+	echo "|---|---|---:|---:|---:|---:|---:|"; \
+	for c in $(TIMING_CASES); do \
+	  scene=$${c%%:*}; set=$${c#*:}; out=$(FREEFEM_OUT)/timing-$$scene-$${set#*=}; \
+	  t0=$$(now); \
+	  $(BIN) solve pipelines/scenes/$$scene.toml --set $$set $(FIXED_K) --quiet --out $$out.rust.h5 > /dev/null 2>&1 || exit 1; \
+	  t1=$$(now); \
+	  $(BIN) freefem pipelines/scenes/$$scene.toml --set $$set $(FIXED_K) --out $$out.h5 > /dev/null || exit 1; \
+	  t2=$$(now); \
+	  mesh=$$($(BIN) info $$out.h5 | awk '/^mesh:/ { print $$2 " / " $$4 }'); \
+	  rw=$$(attr $$out.rust.h5 wall_seconds); rf=$$(attr $$out.rust.h5 factor_seconds); \
+	  ri=$$(attr $$out.rust.h5 iterations); fp=$$(attr $$out.h5 seconds_per_iteration); \
+	  rp=$$(calc %.3f "1000 * ($$rw - $$rf) / $$ri"); fpm=$$(calc %.3f "1000 * $$fp"); \
+	  echo "| $$scene $$set | $$mesh | $$(calc %.2f "$$t1 - $$t0") | $$(calc %.2f "$$t2 - $$t1") | $$rp | $$fpm | $$(calc %.1f "$$fpm / $$rp") |"; \
+	done
+
+# --- Issue 5: benchmarks and work–precision studies (src/bench.rs) ----------
+#   make bench   time / iterations / peak memory of every method to KKT 1e-6 and
+#                1e-10 (shell n = 16…128, disk n = 8…64) against one linear
+#                solve; table, CSV and plots in build/bench/ (~15 min)
+#   make scale   the shell at n = 128 and 256 (≥ 1e6 unknowns) with active-set
+#   make study   work–precision: error against time, report in build/study/
+BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
+
+.PHONY: bench scale study
+
+bench: build
+	$(BENCH_BIN) bench run pipelines/bench/bench.toml --out-dir $(BUILD)/bench
+
+scale: build
+	$(BENCH_BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale
+
+study: build
+	$(BENCH_BIN) bench study --out-dir $(BUILD)/study \
+	  --exact pipelines/studies/work-precision-disk.toml \
+	  --exact pipelines/studies/work-precision-disk-uzawa.toml \
+	  --reference pipelines/studies/work-precision-shell-reference.toml \
+	  --against pipelines/studies/work-precision-shell.toml \
+	  --against pipelines/studies/work-precision-shell-iterative.toml

@@ -13,8 +13,11 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod assembly;
+pub mod bench;
 pub mod error;
+pub mod freefem;
 pub mod gmsh;
+pub mod hard;
 pub mod linalg;
 pub mod mesh;
 pub mod models;

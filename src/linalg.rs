@@ -253,3 +253,74 @@ fn pattern_of(a: &SparseColMat<usize, f64>) -> (Vec<usize>, Vec<usize>) {
     }
     (col_ptr, row_idx)
 }
+
+impl Factorization {
+    /// Solves Aᵀ x = b in place.
+    pub fn solve_transpose_in_place(&self, b: &mut [f64]) {
+        let n = b.len();
+        let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
+        match self {
+            Factorization::Cholesky(f) => f.solve_transpose_in_place(rhs),
+            Factorization::Lu(f) => f.solve_transpose_in_place(rhs),
+        }
+    }
+}
+
+/// A dense LU factorisation with partial pivoting of a small square matrix
+/// (row-major), for capacitance matrices of low-rank updates.
+pub struct DenseLu {
+    n: usize,
+    lu: Vec<f64>,
+    perm: Vec<usize>,
+}
+
+impl DenseLu {
+    /// Factorises the n × n row-major `a`; None when a pivot is zero or
+    /// not finite (the matrix is singular).
+    pub fn new(mut a: Vec<f64>, n: usize) -> Option<Self> {
+        assert_eq!(a.len(), n * n);
+        let mut perm: Vec<usize> = (0..n).collect();
+        for k in 0..n {
+            let p = (k..n)
+                .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
+                .unwrap_or(k);
+            let pivot = a[p * n + k];
+            if pivot == 0.0 || !pivot.is_finite() {
+                return None;
+            }
+            if p != k {
+                for j in 0..n {
+                    a.swap(k * n + j, p * n + j);
+                }
+                perm.swap(k, p);
+            }
+            let (top, bottom) = a.split_at_mut((k + 1) * n);
+            let row_k = &top[k * n..];
+            for row in bottom.chunks_exact_mut(n) {
+                let l = row[k] / pivot;
+                row[k] = l;
+                if l != 0.0 {
+                    for j in k + 1..n {
+                        row[j] -= l * row_k[j];
+                    }
+                }
+            }
+        }
+        Some(DenseLu { n, lu: a, perm })
+    }
+
+    /// Solves A x = b.
+    pub fn solve(&self, b: &[f64]) -> Vec<f64> {
+        let n = self.n;
+        let mut x: Vec<f64> = self.perm.iter().map(|&p| b[p]).collect();
+        for i in 0..n {
+            let s: f64 = (0..i).map(|j| self.lu[i * n + j] * x[j]).sum();
+            x[i] -= s;
+        }
+        for i in (0..n).rev() {
+            let s: f64 = (i + 1..n).map(|j| self.lu[i * n + j] * x[j]).sum();
+            x[i] = (x[i] - s) / self.lu[i * n + i];
+        }
+        x
+    }
+}

@@ -50,6 +50,34 @@ enum Command {
     },
     /// Print a summary of a result file.
     Info { file: PathBuf },
+    /// Run a scene's FreeFEM twin (same .msh, same discrete problem, Uzawa) and
+    /// write FILE.h5 (+ .xdmf) in the layout of `solve`.
+    Freefem {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Result file (default: build/freefem/<scene name>.h5).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Exactly K Uzawa iterations (default: the scene's thesis stop, or, for
+        /// stop = "kkt", min(max_iter, 1000) iterations).
+        #[arg(long)]
+        iterations: Option<usize>,
+    },
+    /// Compare two result files on the same mesh, field by field; exit 1 beyond tolerance.
+    Compare {
+        a: PathBuf,
+        b: PathBuf,
+        /// Tolerance on the relative max-norm and L² differences.
+        #[arg(long, default_value_t = 1e-8)]
+        rtol: f64,
+        /// Only these fields/dof vectors, e.g. u,r,psi,lambda (default: all in both).
+        #[arg(long, value_delimiter = ',')]
+        fields: Option<Vec<String>>,
+        /// Print compact rows `| LABEL | quantity | difference | tolerance |` instead of the table.
+        #[arg(long, value_name = "LABEL")]
+        row: Option<String>,
+    },
     /// Run a study (a scene over a grid of overrides) and print its table.
     Study {
         study: PathBuf,
@@ -58,6 +86,21 @@ enum Command {
         out_dir: PathBuf,
         #[arg(long)]
         quiet: bool,
+    },
+    /// Run the hard cases (pipelines/scenes/hard/) and print their table.
+    Hard {
+        #[arg(default_value = "pipelines/scenes/hard")]
+        dir: PathBuf,
+        /// Override a key of one case: CASE:KEY=VALUE (e.g. mesh-large:mesh.n=96).
+        #[arg(long = "set", value_name = "CASE:KEY=VALUE")]
+        set: Vec<String>,
+        #[arg(long, default_value = "build/hard")]
+        out_dir: PathBuf,
+    },
+    /// Benchmarks and work–precision studies (`make bench`, `make scale`, `make study`).
+    Bench {
+        #[command(subcommand)]
+        command: obstacle_fem::bench::BenchCommand,
     },
 }
 
@@ -133,6 +176,21 @@ fn run(cli: Cli) -> Result<()> {
             print!("{}", summary(&read_result(&file)?));
             Ok(())
         }
+        Command::Freefem {
+            scene,
+            set,
+            out,
+            iterations,
+        } => obstacle_fem::freefem::command(&Scene::load(&scene, &set)?, out, iterations),
+        Command::Compare {
+            a,
+            b,
+            rtol,
+            fields,
+            row,
+        } => obstacle_fem::output::compare::command(&a, &b, rtol, fields.as_deref(), row.as_deref()),
+        Command::Hard { dir, set, out_dir } => obstacle_fem::hard::command(&dir, &out_dir, &set),
+        Command::Bench { command } => obstacle_fem::bench::run(command),
         Command::Study {
             study,
             out_dir,

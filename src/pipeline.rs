@@ -82,7 +82,7 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
 /// The dual step: the scene's number, or "auto" from a Lanczos estimate of
 /// the spectrum of S: 2/(s_max + s_min), the optimal fixed Richardson step,
 /// capped at 95% of the stability bound 2/s_max.
-fn choose_alpha(alpha: Alpha, spectrum: Option<SpectrumEstimate>) -> f64 {
+pub fn choose_alpha(alpha: Alpha, spectrum: Option<SpectrumEstimate>) -> f64 {
     match (alpha, spectrum) {
         (Alpha::Value(a), _) => a,
         (Alpha::Keyword(_), Some(s)) => (2.0 / (s.s_max + s.s_min)).min(1.9 / s.s_max),
@@ -90,9 +90,8 @@ fn choose_alpha(alpha: Alpha, spectrum: Option<SpectrumEstimate>) -> f64 {
     }
 }
 
-/// Runs a scene and writes `out` (HDF5, plus the `.xdmf` and `.msh` beside it).
-pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
-    let start = Instant::now();
+/// Checks a result path (`*.h5`) and creates its folder; returns the folder.
+pub fn output_folder(out: &Path) -> Result<&Path> {
     if out.extension().and_then(|e| e.to_str()) != Some("h5") {
         return Err(Error::output(out, "the result file name must end in .h5"));
     }
@@ -102,6 +101,13 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir)
         .map_err(|e| Error::output(dir, format!("cannot create the output folder: {e}")))?;
+    Ok(dir)
+}
+
+/// Runs a scene and writes `out` (HDF5, plus the `.xdmf` and `.msh` beside it).
+pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
+    let start = Instant::now();
+    let dir = output_folder(out)?;
     // The mesh is written under a temporary name and renamed beside the
     // result only when the run succeeds: a failed run never clobbers FILE.msh.
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
@@ -170,7 +176,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 }
 
 /// The scene's model set up on the mesh.
-fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSystem + 'm>> {
+pub fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSystem + 'm>> {
     Ok(match scene.model {
         Model::Membrane => Box::new(MembraneSystem::setup(mesh, scene)?),
         Model::Naghdi => Box::new(NaghdiSystem::setup(mesh, scene)?),

@@ -482,7 +482,10 @@ impl Scene {
             if s.method != Method::Uzawa {
                 return Err(self.error(
                     "solver.alpha_factor",
-                    format!("only Uzawa takes a fixed step, not method = \"{}\"", s.method.name()),
+                    format!(
+                        "only Uzawa takes a fixed step, not method = \"{}\"",
+                        s.method.name()
+                    ),
                 ));
             }
         }
@@ -594,6 +597,15 @@ impl Scene {
             return Err(self.error(
                 "shell.rho",
                 format!("the penalty must be ≥ 0, got {}", shell.rho),
+            ));
+        }
+        if shell.rho == 0.0
+            && self.solver.method == Method::UzawaSplit
+            && !matches!(shell.chart, Chart::Plate { .. })
+        {
+            return Err(self.error(
+                "shell.rho",
+                "a_ρ is not coercive at ρ = 0 (thesis §5.3): the first splitting (method = \"uzawa-split\") factorises K_ρ alone and needs ρ > 0 (the thesis takes 1e3); the saddle-point methods (uzawa, active-set, dual-accelerated) accept ρ = 0",
             ));
         }
         if self.element != ElementPair::P1bP0 {

@@ -172,9 +172,8 @@ pub fn rates(rows: &[StudyRow], error: impl Fn(&RunSummary) -> Option<f64>) -> V
     let mut out = vec![None; rows.len()];
     for i in 1..rows.len() {
         let (a, b) = (&rows[i - 1], &rows[i]);
-        let same_group = a.labels.len() == b.labels.len()
-            && a.labels[..a.labels.len().saturating_sub(1)]
-                == b.labels[..b.labels.len().saturating_sub(1)];
+        let same_group =
+            a.labels.len() == b.labels.len() && outer_labels(a) == outer_labels(b);
         if !same_group {
             continue;
         }
@@ -336,7 +335,7 @@ pub fn markdown_table(study: &Study, rows: &[StudyRow]) -> String {
     let mut md = format!("## {title}\n");
     let mut group: Option<Vec<(String, String)>> = None;
     for (i, row) in rows.iter().enumerate() {
-        let outer: Vec<_> = row.labels[..row.labels.len().saturating_sub(1)].to_vec();
+        let outer = outer_labels(row);
         if group.as_ref() != Some(&outer) {
             let heading: Vec<String> = outer.iter().map(|(k, v)| format!("{k} = {v}")).collect();
             let _ = writeln!(
@@ -419,6 +418,28 @@ pub fn csv_table(study: &Study, rows: &[StudyRow]) -> String {
     csv
 }
 
+/// The labels of a row's outer sweeps (all but the innermost).
+fn outer_labels(row: &StudyRow) -> Vec<(String, String)> {
+    row.labels[..row.labels.len().saturating_sub(1)].to_vec()
+}
+
+/// The runs grouped by the values of the outer sweeps: consecutive ranges
+/// over which only the innermost sweep (the mesh level) varies.
+fn groups(rows: &[StudyRow]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    while start < rows.len() {
+        let group = outer_labels(&rows[start]);
+        let len = rows[start..]
+            .iter()
+            .take_while(|r| outer_labels(r) == group)
+            .count();
+        out.push(start..start + len);
+        start += len;
+    }
+    out
+}
+
 /// Per run, the history values at the study's iterations (thesis Table 5.5):
 /// one Markdown table per run, a row per history column.
 pub fn history_tables(spec: &HistoryTableSpec, rows: &[StudyRow]) -> String {
@@ -469,21 +490,14 @@ pub fn reference_study(
 ) -> Result<(String, Vec<PathBuf>)> {
     let mut md = String::new();
     let mut files = Vec::new();
-    let outer = |r: &StudyRow| r.labels[..r.labels.len().saturating_sub(1)].to_vec();
-    let mut start = 0;
-    while start < rows.len() {
-        let group = outer(&rows[start]);
-        let end = start
-            + rows[start..]
-                .iter()
-                .take_while(|r| outer(r) == group)
-                .count();
+    for range in groups(rows) {
+        let (start, end) = (range.start, range.end);
+        let group = outer_labels(&rows[start]);
         if rows[end - 1].failure.is_some() {
             let _ = writeln!(
                 md,
                 "\nThe finest run of a group failed: no reference errors."
             );
-            start = end;
             continue;
         }
         let reference = &rows[end - 1].summary;
@@ -500,7 +514,6 @@ pub fn reference_study(
             levels.push((s.h, errors));
         }
         let Some((_, first)) = levels.first() else {
-            start = end;
             continue;
         };
         let names: Vec<String> = first.iter().map(|(n, _)| n.clone()).collect();
@@ -546,7 +559,6 @@ pub fn reference_study(
             &[0.5, 1.0, 2.0],
         )?;
         files.push(path);
-        start = end;
     }
     Ok((md, files))
 }
@@ -559,15 +571,9 @@ pub fn write_convergence_plots(
     out_dir: &Path,
 ) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
-    let mut start = 0;
-    while start < rows.len() {
-        let outer = |r: &StudyRow| r.labels[..r.labels.len().saturating_sub(1)].to_vec();
-        let group = outer(&rows[start]);
-        let end = start
-            + rows[start..]
-                .iter()
-                .take_while(|r| outer(r) == group)
-                .count();
+    for range in groups(rows) {
+        let (start, end) = (range.start, range.end);
+        let group = outer_labels(&rows[start]);
         let points = |f: &dyn Fn(&ExactErrors) -> f64| -> Vec<(f64, f64)> {
             rows[start..end]
                 .iter()
@@ -596,7 +602,6 @@ pub fn write_convergence_plots(
             )?;
             files.push(path);
         }
-        start = end;
     }
     Ok(files)
 }

@@ -7,92 +7,30 @@
 //! Needs `gmsh`, `FreeFem++` and FreeFEM's plugins (`libfreefem++`) — `make deps`
 //! installs them. A missing FreeFEM fails the test; it is never skipped.
 
+mod common;
+
+use common::{check_success, max_abs, obstacle, read_ff_mesh, read_info, read_numbers, rel_diff};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::output::{read_result, AttrValue, ResultFile};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 const ITERATIONS: usize = 100;
 /// Agreement required, relative to the max norm of each Rust vector.
 const RTOL: f64 = 1e-8;
 
-fn manifest_path(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
-}
-
 fn scene() -> PathBuf {
-    manifest_path("pipelines/scenes/obstacle-disk.toml")
+    common::manifest_path("pipelines/scenes/obstacle-disk.toml")
 }
 
 fn script() -> PathBuf {
-    manifest_path("freefem/membrane-obstacle.edp")
+    obstacle_fem::freefem::script_dir().join("membrane-obstacle.edp")
 }
 
-fn ff_loadpath() -> String {
-    std::env::var("FF_LOADPATH").unwrap_or_else(|_| "/usr/lib/freefem++".into())
-}
-
-/// Runs FreeFem++ on the script with `args`; panics (never skips) when FreeFEM
-/// or its gmsh plugin is missing.
+/// Runs the membrane script; panics (never skips) when FreeFEM is missing.
 fn run_freefem(args: &[String]) -> Output {
-    let loadpath = ff_loadpath();
-    let plugin = Path::new(&loadpath).join("gmsh.so");
-    assert!(
-        plugin.is_file(),
-        "FreeFEM's gmsh plugin {} is missing (package libfreefem++): run `make deps`",
-        plugin.display()
-    );
-    Command::new("FreeFem++")
-        .env("FF_LOADPATH", &loadpath)
-        // Single-threaded BLAS: timings comparable with the Rust side.
-        .env("OPENBLAS_NUM_THREADS", "1")
-        .env("OMP_NUM_THREADS", "1")
-        .args(["-nw", "-v", "0"])
-        .arg(script())
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| {
-            panic!("cannot run FreeFem++ ({e}): FreeFEM is not installed or not on PATH; run `make deps`")
-        })
-}
-
-fn check_success(what: &str, out: &Output) {
-    assert!(
-        out.status.success(),
-        "{what} failed ({}):\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-fn obstacle(args: &[String]) {
-    let out = Command::new(env!("CARGO_BIN_EXE_obstacle"))
-        .args(args)
-        .output()
-        .expect("cannot run the obstacle binary");
-    check_success(&format!("obstacle {}", args.join(" ")), &out);
-}
-
-fn read_numbers(path: &Path) -> Vec<f64> {
-    std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
-        .split_whitespace()
-        .map(|s| {
-            s.parse::<f64>()
-                .unwrap_or_else(|e| panic!("{}: bad number {s:?}: {e}", path.display()))
-        })
-        .collect()
-}
-
-fn read_info(path: &Path) -> HashMap<String, String> {
-    std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
-        .lines()
-        .filter_map(|l| l.split_once(' '))
-        .map(|(k, v)| (k.to_string(), v.trim().to_string()))
-        .collect()
+    common::run_freefem("membrane-obstacle.edp", args).0
 }
 
 fn info_usize(info: &HashMap<String, String>, key: &str) -> usize {
@@ -107,25 +45,6 @@ fn info_f64(info: &HashMap<String, String>, key: &str) -> f64 {
         .unwrap_or_else(|| panic!("FreeFEM info has no `{key}`"))
         .parse()
         .unwrap()
-}
-
-/// FreeFEM's `PREFIX.mesh.txt`: "nv nt", nv lines "x y", nt lines "a b c".
-fn read_ff_mesh(path: &Path) -> (Vec<[f64; 2]>, Vec<[usize; 3]>) {
-    let v = read_numbers(path);
-    let (nv, nt) = (v[0] as usize, v[1] as usize);
-    assert_eq!(v.len(), 2 + 2 * nv + 3 * nt, "{}", path.display());
-    let verts = (0..nv).map(|i| [v[2 + 2 * i], v[3 + 2 * i]]).collect();
-    let o = 2 + 2 * nv;
-    let tris = (0..nt)
-        .map(|t| {
-            [
-                v[o + 3 * t] as usize,
-                v[o + 3 * t + 1] as usize,
-                v[o + 3 * t + 2] as usize,
-            ]
-        })
-        .collect();
-    (verts, tris)
 }
 
 fn dofs<'a>(r: &'a ResultFile, name: &str) -> &'a [f64] {
@@ -153,27 +72,6 @@ fn solver_attr<'a>(r: &'a ResultFile, name: &str) -> &'a AttrValue {
         .find(|(n, _)| n == name)
         .unwrap_or_else(|| panic!("no /solver attribute {name}"))
         .1
-}
-
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
-}
-
-/// max |a − b| relative to max |a| (a: Rust), and its position.
-fn rel_diff(a: &[f64], b: &[f64]) -> (f64, usize) {
-    assert_eq!(a.len(), b.len());
-    let scale = max_abs(a);
-    assert!(scale > 0.0, "the Rust vector is zero");
-    let (i, d) = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .enumerate()
-        .fold(
-            (0, 0.0),
-            |(bi, bd), (i, d)| if d > bd { (i, d) } else { (bi, bd) },
-        );
-    (d / scale, i)
 }
 
 fn check_close(case: &str, what: &str, rust: &[f64], ff: &[f64]) -> f64 {

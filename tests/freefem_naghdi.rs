@@ -22,9 +22,11 @@
 //! ```
 //!
 //! Needs `gmsh`, `FreeFem++` and FreeFEM's plugins (`libfreefem++`, `make deps`).
-//! Without `FreeFem++` on PATH the tests say so and skip; a FreeFEM without
-//! its gmsh plugin fails.
+//! A missing FreeFEM fails the tests; they are never skipped.
 
+mod common;
+
+use common::{check_success, max_abs, read_ff_mesh, read_info, read_numbers, rel_diff};
 use obstacle_fem::assembly::DofNumbering;
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::factorize_checked;
@@ -36,9 +38,8 @@ use obstacle_fem::models::naghdi::forms::{
 use obstacle_fem::models::naghdi::geometry::{Chart, Material};
 use obstacle_fem::scene::{DualNorm, StepForm, StopRule};
 use obstacle_fem::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::time::Instant;
 
 const ITERATIONS: usize = 100;
@@ -65,105 +66,20 @@ fn chart() -> Chart {
     }
 }
 
-fn manifest_path(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
-}
-
 fn script() -> PathBuf {
-    manifest_path("freefem/naghdi-contact.edp")
+    obstacle_fem::freefem::script_dir().join("naghdi-contact.edp")
 }
 
-fn ff_loadpath() -> String {
-    std::env::var("FF_LOADPATH").unwrap_or_else(|_| "/usr/lib/freefem++".into())
-}
-
-/// Is `FreeFem++` on PATH? (Looked up without running it.)
-fn freefem_installed() -> bool {
-    std::env::var_os("PATH")
-        .map(|p| std::env::split_paths(&p).any(|d| d.join("FreeFem++").is_file()))
-        .unwrap_or(false)
-}
-
-/// FreeFEM is part of the test environment (CI installs it): a missing
-/// FreeFem++ fails the test, it is never skipped. Always false.
-fn skip_without_freefem(test: &str) -> bool {
-    assert!(
-        freefem_installed(),
-        "{test}: FreeFem++ is not on PATH: install the Debian packages freefem++ libfreefem++ (`make deps`)"
-    );
-    false
-}
-
-/// Runs FreeFem++ on the script with `args`; the wall time of the whole process.
+/// Runs the shell script; the wall time of the whole process. Panics (never
+/// skips) when FreeFEM is missing.
 fn run_freefem(args: &[String]) -> (Output, f64) {
-    let loadpath = ff_loadpath();
-    let plugin = Path::new(&loadpath).join("gmsh.so");
-    assert!(
-        plugin.is_file(),
-        "FreeFEM's gmsh plugin {} is missing (package libfreefem++): run `make deps`",
-        plugin.display()
-    );
-    let start = Instant::now();
-    let out = Command::new("FreeFem++")
-        .env("FF_LOADPATH", &loadpath)
-        // Single-threaded BLAS: timings comparable with the Rust side.
-        .env("OPENBLAS_NUM_THREADS", "1")
-        .env("OMP_NUM_THREADS", "1")
-        .args(["-nw", "-v", "0"])
-        .arg(script())
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run FreeFem++ ({e})"));
-    (out, start.elapsed().as_secs_f64())
-}
-
-fn check_success(what: &str, out: &Output) {
-    assert!(
-        out.status.success(),
-        "{what} failed ({}):\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-fn read_numbers(path: &Path) -> Vec<f64> {
-    std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
-        .split_whitespace()
-        .map(|s| {
-            s.parse::<f64>()
-                .unwrap_or_else(|e| panic!("{}: bad number {s:?}: {e}", path.display()))
-        })
-        .collect()
-}
-
-fn read_info(path: &Path) -> HashMap<String, String> {
-    std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
-        .lines()
-        .filter_map(|l| l.split_once(' '))
-        .map(|(k, v)| (k.to_string(), v.trim().to_string()))
-        .collect()
-}
-
-/// FreeFEM's `PREFIX.mesh.txt`: "nv nt", nv lines "x y", nt lines "a b c".
-fn read_ff_mesh(path: &Path) -> (Vec<[f64; 2]>, Vec<[usize; 3]>) {
-    let v = read_numbers(path);
-    let (nv, nt) = (v[0] as usize, v[1] as usize);
-    assert_eq!(v.len(), 2 + 2 * nv + 3 * nt, "{}", path.display());
-    let verts = (0..nv).map(|i| [v[2 + 2 * i], v[3 + 2 * i]]).collect();
-    let o = 2 + 2 * nv;
-    let tris = (0..nt)
-        .map(|t| std::array::from_fn(|j| v[o + 3 * t + j] as usize))
-        .collect();
-    (verts, tris)
+    common::run_freefem("naghdi-contact.edp", args)
 }
 
 fn diamond(dir: &Path, n: usize) -> (PathBuf, Mesh) {
     let msh = dir.join(format!("diamond-{n}.msh"));
     run_gmsh(
-        &manifest_path("meshes/diamond.geo"),
+        &common::manifest_path("meshes/diamond.geo"),
         &msh,
         &[("n".into(), n as f64)],
     )
@@ -358,27 +274,6 @@ fn freefem_run(
     }
 }
 
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
-}
-
-/// max |a − b| / max |a| (a: Rust), and where.
-fn rel_diff(a: &[f64], b: &[f64]) -> (f64, usize) {
-    assert_eq!(a.len(), b.len());
-    let scale = max_abs(a);
-    assert!(scale > 0.0, "the Rust field is zero");
-    let (i, d) = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .enumerate()
-        .fold(
-            (0, 0.0),
-            |(bi, bd), (i, d)| if d > bd { (i, d) } else { (bi, bd) },
-        );
-    (d / scale, i)
-}
-
 /// Compares every field; returns (name, relative difference) and asserts ≤ RTOL.
 fn compare(label: &str, mesh: &Mesh, rust: &Run, ff: &Run, contact: bool) -> Vec<(String, f64)> {
     let layout = ShellLayout::new(mesh);
@@ -490,9 +385,6 @@ fn check_mesh(n: usize, step_forms: &[StepForm], free: bool) {
 
 #[test]
 fn freefem_and_rust_naghdi_uzawa_agree_on_the_thesis_mesh() {
-    if skip_without_freefem("freefem_and_rust_naghdi_uzawa_agree_on_the_thesis_mesh") {
-        return;
-    }
     check_mesh(16, &[StepForm::Integral, StepForm::Mean], true);
 }
 
@@ -500,9 +392,6 @@ fn freefem_and_rust_naghdi_uzawa_agree_on_the_thesis_mesh() {
 #[test]
 #[ignore = "timing study: 32×32 and 64×64 meshes (run with --ignored --nocapture)"]
 fn freefem_naghdi_timings_finer_meshes() {
-    if skip_without_freefem("freefem_naghdi_timings_finer_meshes") {
-        return;
-    }
     for n in [32, 64] {
         check_mesh(n, &[StepForm::Integral], false);
     }
@@ -510,9 +399,6 @@ fn freefem_naghdi_timings_finer_meshes() {
 
 #[test]
 fn freefem_naghdi_script_refuses_bad_options() {
-    if skip_without_freefem("freefem_naghdi_script_refuses_bad_options") {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let (msh, _) = diamond(dir.path(), 4);
     let prefix = dir.path().join("bad").display().to_string();

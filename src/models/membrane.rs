@@ -6,7 +6,7 @@
 //! from `solvers` → [`MembraneSystem::results`] (fields, errors).
 
 use super::exact::RadialObstacle;
-use super::{named_boundary_tags, vertex_field, ModelSystem};
+use super::{contact_fields, named_boundary_tags, vertex_field, ModelSystem};
 use crate::assembly::{
     assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
     mass, DofNumbering,
@@ -14,7 +14,7 @@ use crate::assembly::{
 use crate::error::Result;
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
-use crate::output::{AttrValue, Field, Location, ResultData};
+use crate::output::{AttrValue, Location, ResultData};
 use crate::quadrature::TriangleRule;
 use crate::scene::{ElementPair, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
@@ -206,29 +206,16 @@ impl ModelSystem for MembraneSystem<'_> {
         if let (Some(obstacle), Some(c)) = (&scene.obstacle, &problem.constraint) {
             let phi = Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
             data.fields.push(vertex_field("phi", phi));
-            let gap = c.mean_gaps(&report.x);
             let location = match self.lambda_space.element {
                 Element::P0 => Location::Cell,
                 _ => Location::Vertex,
             };
-            let contact: Vec<f64> = report
-                .lambda
-                .iter()
-                .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
-                .collect();
-            for (name, values) in [
-                ("lambda", report.lambda.clone()),
-                ("gap_mean", gap),
-                ("contact", contact),
-            ] {
-                data.fields.push(Field {
-                    name: name.into(),
-                    values,
-                    components: 1,
-                    location,
-                });
-            }
-            data.dofs.push(("lambda".into(), report.lambda.clone()));
+            contact_fields(
+                &mut data,
+                report.lambda.clone(),
+                c.mean_gaps(&report.x),
+                location,
+            );
         }
         data.root_attrs
             .push(("model".into(), AttrValue::Str("membrane".into())));

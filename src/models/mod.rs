@@ -80,12 +80,24 @@ pub fn vertex_field(name: &str, values: Vec<f64>) -> Field {
     }
 }
 
-/// A scalar field on the triangles.
-pub fn cell_field(name: &str, values: Vec<f64>) -> Field {
-    Field {
-        name: name.into(),
-        values,
-        components: 1,
-        location: Location::Cell,
+/// The contact fields of a result: λ, the mean gap ḡ and the contact
+/// indicator (λ > 0) at `location`, and λ's coefficient vector.
+pub fn contact_fields(data: &mut ResultData, lambda: Vec<f64>, gap: Vec<f64>, location: Location) {
+    let contact = lambda
+        .iter()
+        .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
+        .collect();
+    for (name, values) in [
+        ("lambda", lambda.clone()),
+        ("gap_mean", gap),
+        ("contact", contact),
+    ] {
+        data.fields.push(Field {
+            name: name.into(),
+            values,
+            components: 1,
+            location,
+        });
     }
+    data.dofs.push(("lambda".into(), lambda));
 }

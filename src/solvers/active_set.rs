@@ -48,7 +48,10 @@ use super::uzawa::solve_linear;
 use super::{ContactProblem, SolveReport};
 use crate::assembly::{mat_vec, norm_inf};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, first_non_finite, solve_refined, ReusableLu};
+use crate::linalg::{
+    factorize_checked, first_non_finite, residual, solve_refined, DenseLu, Factorization,
+    ReusableLu,
+};
 use crate::progress::IterationProgress;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::time::Instant;
@@ -88,6 +91,11 @@ pub struct ActiveSetOptions {
     pub initial_x: Option<Vec<f64>>,
     /// Steps of iterative refinement after each solve.
     pub refinement_steps: usize,
+    /// Newton matrices of at least this size (n + m) may be solved as a
+    /// row update of the last factorised one (module docs, "Updates")
+    /// instead of being refactorised; smaller ones are refactorised at
+    /// every step. usize::MAX: always refactorise.
+    pub update_min_size: usize,
     pub show_progress: bool,
 }
 
@@ -100,6 +108,7 @@ impl Default for ActiveSetOptions {
             initial_lambda: None,
             initial_x: None,
             refinement_steps: 1,
+            update_min_size: 20_000,
             show_progress: false,
         }
     }
@@ -114,6 +123,8 @@ struct NewtonMatrix {
     /// For each constraint row i: (value position in the matrix, s_i C_ij)
     /// of the entries of row n + i.
     row_entries: Vec<Vec<(usize, f64)>>,
+    /// For each constraint row i: (column j, s_i C_ij), sorted by j.
+    row_cols: Vec<Vec<(usize, f64)>>,
     /// Value position of the diagonal entry (n + i, n + i).
     diagonal: Vec<usize>,
     /// The diagonal value d of inactive rows.
@@ -159,6 +170,7 @@ impl NewtonMatrix {
         let mut row_idx = Vec::with_capacity(nnz);
         let mut values = Vec::with_capacity(nnz);
         let mut row_entries: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
+        let mut row_cols: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
         col_ptr.push(0);
         let as_ = a.symbolic();
         for j in 0..n {
@@ -178,6 +190,7 @@ impl NewtonMatrix {
             cc.sort_by_key(|e| e.0);
             for (i, v) in cc {
                 row_entries[i].push((values.len(), scale[i] * v));
+                row_cols[i].push((j, scale[i] * v));
                 row_idx.push(n + i);
                 values.push(0.0);
             }
@@ -199,6 +212,7 @@ impl NewtonMatrix {
         Ok(NewtonMatrix {
             matrix: SparseColMat::new(symbolic, values),
             row_entries,
+            row_cols,
             diagonal,
             d: a_max,
             scale,
@@ -294,12 +308,14 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     let mut stop_reason = "max_iter";
     let mut max_linear_residual = 0.0f64;
     let mut rhs = vec![0.0; n + m];
+    let mut update: Option<RowUpdate> = None;
+    let (mut factor_time, mut solve_time) = (0.0f64, 0.0f64);
+    let (mut lu_steps, mut update_steps, mut update_fallbacks) = (0usize, 0usize, 0usize);
+    let (mut update_solves, mut max_update_rank) = (0usize, 0usize);
+    let mut update_seconds = 0.0f64;
     for k in 1..=options.max_iter {
         iterations = k;
         newton.set_active(&active);
-        let t = Instant::now();
-        let (factorization, _) = lu.factorize(&newton.matrix, "active-set Newton matrix")?;
-        factor_seconds += t.elapsed().as_secs_f64();
         rhs[..n].copy_from_slice(&problem.rhs);
         for i in 0..m {
             rhs[n + i] = if active[i] {
@@ -308,13 +324,60 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
                 0.0
             };
         }
-        let mut z = rhs.clone();
-        let linear_residual = solve_refined(
-            &newton.matrix,
-            &factorization,
-            &mut z,
-            options.refinement_steps,
-        );
+        // The update path when it is estimated cheaper than a refactorisation.
+        let mut solved: Option<(Vec<f64>, f64)> = None;
+        if let Some(upd) = update.as_mut() {
+            let diff = upd.differing(&active);
+            let new = diff.iter().filter(|&&i| upd.slot[i] == usize::MAX).count();
+            let estimate = (2 * new + 4) as f64 * solve_time;
+            if diff.len() <= MAX_UPDATE_RANK
+                && upd.indices.len() + new <= 2 * MAX_UPDATE_RANK
+                && estimate < factor_time
+            {
+                let t = Instant::now();
+                let solves_before = upd.solves;
+                let target = (10.0 * upd.ref_residual).max(1e-12);
+                solved = upd.solve(&newton, n, &diff, &rhs, target);
+                let elapsed = t.elapsed().as_secs_f64();
+                update_seconds += elapsed;
+                let solves = upd.solves - solves_before;
+                if solves > 0 {
+                    solve_time = elapsed / solves as f64;
+                }
+                if solved.is_some() {
+                    update_steps += 1;
+                    max_update_rank = max_update_rank.max(diff.len());
+                } else {
+                    update_fallbacks += 1;
+                }
+            }
+        }
+        let (z, linear_residual) = match solved {
+            Some(s) => s,
+            None => {
+                if let Some(upd) = update.take() {
+                    update_solves += upd.solves;
+                }
+                let t = Instant::now();
+                let (factorization, _) = lu.factorize(&newton.matrix, "active-set Newton matrix")?;
+                factor_time = t.elapsed().as_secs_f64();
+                factor_seconds += factor_time;
+                let mut z = rhs.clone();
+                let t = Instant::now();
+                let res = solve_refined(
+                    &newton.matrix,
+                    &factorization,
+                    &mut z,
+                    options.refinement_steps,
+                );
+                solve_time = t.elapsed().as_secs_f64() / (1 + options.refinement_steps) as f64;
+                lu_steps += 1;
+                if n + m >= options.update_min_size {
+                    update = Some(RowUpdate::new(factorization, active.clone(), res));
+                }
+                (z, res)
+            }
+        };
         max_linear_residual = max_linear_residual.max(linear_residual);
         if let Some(i) = first_non_finite(&z) {
             return Err(Error::numerical(
@@ -396,6 +459,9 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         previous = std::mem::replace(&mut active, next);
     }
     progress.finish();
+    if let Some(upd) = update.take() {
+        update_solves += upd.solves;
+    }
     let c_min = c_rule.iter().cloned().fold(f64::INFINITY, f64::min);
     let c_max = c_rule.iter().cloned().fold(0.0, f64::max);
     Ok(SolveReport {
@@ -419,6 +485,12 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
                 lu.numeric_factorizations() as f64,
             ),
             ("max_linear_residual".into(), max_linear_residual),
+            ("lu_steps".into(), lu_steps as f64),
+            ("update_steps".into(), update_steps as f64),
+            ("update_fallbacks".into(), update_fallbacks as f64),
+            ("update_solves".into(), update_solves as f64),
+            ("max_update_rank".into(), max_update_rank as f64),
+            ("update_seconds".into(), update_seconds),
         ],
     })
 }
@@ -461,4 +533,164 @@ pub fn jacobi_dual_diagonal(problem: &ContactProblem) -> Vec<f64> {
     }
     s.iter_mut().zip(&c.weights).for_each(|(si, w)| *si /= w);
     s
+}
+
+/// Ranks above this are always refactorised (the dense capacitance matrix
+/// and its O(r³) factorisation).
+const MAX_UPDATE_RANK: usize = 2000;
+/// Refinement sweeps of an update-path solve before it falls back to a
+/// refactorisation.
+const MAX_UPDATE_SWEEPS: usize = 4;
+
+/// The Newton matrix M of the current active set as a row update of the
+/// last factorised one, M_ref (active set 𝒜_ref): the constraint rows
+/// n + i with i ∈ R = 𝒜 Δ 𝒜_ref differ, M = M_ref + Σ_{i∈R} e_{n+i} D_i,
+/// with D_i = σ_i (s_i C_i − d e_{n+i}ᵀ), σ_i = +1 if i ∉ 𝒜_ref (the row is
+/// switched on), −1 otherwise. Woodbury:
+///
+/// ```text
+///     M⁻¹ b = y − M_ref⁻¹ P (I + G_RR)⁻¹ D_R y,   y = M_ref⁻¹ b,
+///     G_ab = D_a M_ref⁻¹ e_{n+b},
+/// ```
+///
+/// two solves with M_ref per application. D_i depends only on i and
+/// 𝒜_ref, so the entries of G are cached for every index met since the
+/// last refactorisation: an index new to R costs one solve (column
+/// M_ref⁻¹ e_{n+j}) and one transposed solve (row D_j M_ref⁻¹).
+struct RowUpdate {
+    reference: Factorization,
+    ref_active: Vec<bool>,
+    /// Relative residual of the last LU-path solve (the accuracy to match).
+    ref_residual: f64,
+    /// Cache slot of each constraint index (usize::MAX: none).
+    slot: Vec<usize>,
+    /// Constraint index of each slot.
+    indices: Vec<usize>,
+    /// g[a][b] = D_{indices[a]} · M_ref⁻¹ e_{n + indices[b]}.
+    g: Vec<Vec<f64>>,
+    /// Solves with M_ref or its transpose done for this reference.
+    solves: usize,
+}
+
+impl RowUpdate {
+    fn new(
+        reference: Factorization,
+        ref_active: Vec<bool>,
+        ref_residual: f64,
+    ) -> RowUpdate {
+        let m = ref_active.len();
+        RowUpdate {
+            reference,
+            ref_active,
+            ref_residual,
+            slot: vec![usize::MAX; m],
+            indices: Vec::new(),
+            g: Vec::new(),
+            solves: 0,
+        }
+    }
+
+    /// D_i · w.
+    fn d_dot(&self, newton: &NewtonMatrix, n: usize, i: usize, w: &[f64]) -> f64 {
+        let sigma = if self.ref_active[i] { -1.0 } else { 1.0 };
+        let s: f64 = newton.row_cols[i].iter().map(|&(j, v)| v * w[j]).sum();
+        sigma * (s - newton.d * w[n + i])
+    }
+
+    /// Adds index j to the cache (two solves).
+    fn add(&mut self, newton: &NewtonMatrix, n: usize, j: usize) {
+        let size = n + newton.diagonal.len();
+        let new_slot = self.indices.len();
+        self.slot[j] = new_slot;
+        self.indices.push(j);
+        // Column: M_ref⁻¹ e_{n+j}.
+        let mut w = vec![0.0; size];
+        w[n + j] = 1.0;
+        self.reference.solve_in_place(&mut w);
+        // Row: M_ref⁻ᵀ D_jᵀ.
+        let mut v = vec![0.0; size];
+        let sigma = if self.ref_active[j] { -1.0 } else { 1.0 };
+        for &(col, val) in &newton.row_cols[j] {
+            v[col] += sigma * val;
+        }
+        v[n + j] -= sigma * newton.d;
+        self.reference.solve_transpose_in_place(&mut v);
+        self.solves += 2;
+        let mut row: Vec<f64> = self.indices.iter().map(|&i| v[n + i]).collect();
+        row[new_slot] = self.d_dot(newton, n, j, &w);
+        for a in 0..new_slot {
+            let value = self.d_dot(newton, n, self.indices[a], &w);
+            self.g[a].push(value);
+        }
+        self.g.push(row);
+    }
+
+    /// The indices where `active` differs from the reference.
+    fn differing(&self, active: &[bool]) -> Vec<usize> {
+        (0..active.len())
+            .filter(|&i| active[i] != self.ref_active[i])
+            .collect()
+    }
+
+    /// Solves M z = b, M the current Newton matrix (= M_ref + rows `diff`),
+    /// by Woodbury with the cached G, followed by refinement sweeps with
+    /// the true M until the relative residual is at most `target`. None when
+    /// the capacitance matrix is singular or the residual is not reached.
+    fn solve(
+        &mut self,
+        newton: &NewtonMatrix,
+        n: usize,
+        diff: &[usize],
+        b: &[f64],
+        target: f64,
+    ) -> Option<(Vec<f64>, f64)> {
+        for &i in diff {
+            if self.slot[i] == usize::MAX {
+                self.add(newton, n, i);
+            }
+        }
+        let r = diff.len();
+        let slots: Vec<usize> = diff.iter().map(|&i| self.slot[i]).collect();
+        let mut cap = vec![0.0; r * r];
+        for (a, &sa) in slots.iter().enumerate() {
+            for (bb, &sb) in slots.iter().enumerate() {
+                cap[a * r + bb] = self.g[sa][sb] + if a == bb { 1.0 } else { 0.0 };
+            }
+        }
+        let capacitance = DenseLu::new(cap, r)?;
+        let apply = |this: &mut RowUpdate, rhs: &[f64]| -> Vec<f64> {
+            let mut y = rhs.to_vec();
+            this.reference.solve_in_place(&mut y);
+            let t: Vec<f64> = diff.iter().map(|&i| this.d_dot(newton, n, i, &y)).collect();
+            let c = capacitance.solve(&t);
+            let mut u = vec![0.0; rhs.len()];
+            for (&i, &ci) in diff.iter().zip(&c) {
+                u[n + i] = ci;
+            }
+            this.reference.solve_in_place(&mut u);
+            this.solves += 2;
+            y.iter_mut().zip(&u).for_each(|(yi, ui)| *yi -= ui);
+            y
+        };
+        let scale = norm_inf(b).max(f64::MIN_POSITIVE);
+        let mut z = apply(self, b);
+        let mut rel = f64::INFINITY;
+        for _ in 0..MAX_UPDATE_SWEEPS {
+            let res = residual(&newton.matrix, &z, b);
+            rel = norm_inf(&res) / scale;
+            if !rel.is_finite() {
+                return None;
+            }
+            if rel <= target {
+                break;
+            }
+            let dz = apply(self, &res);
+            z.iter_mut().zip(&dz).for_each(|(zi, di)| *zi += di);
+        }
+        if rel > target {
+            let res = residual(&newton.matrix, &z, b);
+            rel = norm_inf(&res) / scale;
+        }
+        (rel <= target && first_non_finite(&z).is_none()).then_some((z, rel))
+    }
 }

@@ -20,7 +20,7 @@ use crate::assembly::{quad_points, DofNumbering};
 use crate::error::{Error, Result};
 use crate::linalg::MatrixKind;
 use crate::mesh::{Mesh, PointLocator};
-use crate::models::{cell_field, named_boundary_tags, vertex_field, ModelSystem};
+use crate::models::{contact_fields, named_boundary_tags, vertex_field, ModelSystem};
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::quadrature::TriangleRule;
 use crate::scene::{Scene, ShellSpec};
@@ -283,18 +283,19 @@ impl ModelSystem for NaghdiSystem<'_> {
             data.fields.push(vertex_field("phi", phi.clone()));
             data.fields
                 .push(vertex_field("constraint", constraint.clone()));
-            let gap = c.mean_gaps(&report.x);
-            let contact: Vec<f64> = report
+            let area: f64 = report
                 .lambda
                 .iter()
-                .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
-                .collect();
-            let area: f64 = contact.iter().zip(&c.weights).map(|(a, w)| a * w).sum();
-            data.fields
-                .push(cell_field("lambda", report.lambda.clone()));
-            data.fields.push(cell_field("gap_mean", gap));
-            data.fields.push(cell_field("contact", contact));
-            data.dofs.push(("lambda".into(), report.lambda.clone()));
+                .zip(&c.weights)
+                .filter(|(l, _)| **l > 0.0)
+                .map(|(_, w)| w)
+                .sum();
+            contact_fields(
+                &mut data,
+                report.lambda.clone(),
+                c.mean_gaps(&report.x),
+                Location::Cell,
+            );
             attrs.push(("contact_area", AttrValue::F64(area)));
             attrs.push((
                 "phi_positive_vertices",

@@ -1,0 +1,1252 @@
+//! Benchmarks and work–precision studies (issue 5): `obstacle bench …`.
+//!
+//! * `obstacle bench run CONFIG` (`make bench`, `make scale`): each
+//!   (problem, mesh level, method, tolerance) is solved in a **child process**
+//!   (`obstacle bench case …`, the same binary) so that its peak memory is its
+//!   own: the child reads `VmHWM` from `/proc/self/status` when it is done
+//!   (peak resident set of the whole process: mesh, assembly, solve, result
+//!   file) and prints one `BENCH key=value …` line. Per mesh level the *floor*
+//!   is measured too: one factorisation + one solve of the system matrix
+//!   without contact (`A x = F`, the matrix every contact solver starts
+//!   from). Times are the solver's own wall time (`/solver/wall_seconds`:
+//!   factorisations + iterations; meshing, assembly and output excluded);
+//!   `total` is the child's wall time for everything.
+//!
+//!   The cap: a method's run at the tightest tolerance gets `solver.max_iter`
+//!   = what fits in `cap_seconds` by a calibration from the floor (one solve
+//!   per iteration for the iterative methods, one factorisation per Newton
+//!   step for active-set). A run that stops on `max_iter` is *capped*: its
+//!   measured time is a lower bound of the time to the tolerance (shown as
+//!   `>t`), and the linear rate of its last KKT measures gives an
+//!   *estimate* of the iterations still needed (shown separately). A looser
+//!   tolerance is read from the same run when the KKT measure first falls
+//!   below it at the last iteration (same run, same numbers); otherwise it
+//!   is run on its own (the iterations are then known). A method capped at
+//!   one level is not run at the finer ones (`>cap`, times grow with n).
+//!   A hard kill at 3·cap + 120 s guards against a bad calibration.
+//!
+//! * `obstacle bench study …` (`make study`): work–precision. Runs study
+//!   files (sweeps of element, method, mesh level and tolerance) in process,
+//!   measures errors (disk: against the exact solution; shell: against a
+//!   reference run on a finer mesh via [`crate::transfer`]) against the
+//!   solver's wall time, and writes log–log plots and a Markdown report.
+
+use crate::error::{Error, Result};
+use crate::linalg::Factorization;
+use crate::mesh::Mesh;
+use crate::models::membrane::MembraneSystem;
+use crate::models::naghdi::system::NaghdiSystem;
+use crate::models::ModelSystem;
+use crate::output::{read_result, AttrValue, ResultFile};
+use crate::pipeline::{run_scene, scene_mesh};
+use crate::plot;
+use crate::scene::{Model, Scene};
+use crate::study::{run_study, Study, StudyRow};
+use crate::transfer::relative_errors;
+use clap::Subcommand;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The `bench` subcommands.
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Run a benchmark configuration (pipelines/bench/*.toml): table, CSV, plots.
+    Run {
+        config: PathBuf,
+        #[arg(long, default_value = "build/bench")]
+        out_dir: PathBuf,
+        /// Override the configuration's cap (seconds per run).
+        #[arg(long)]
+        cap: Option<f64>,
+    },
+    /// One benchmark case (run by `bench run` in a child process): prints one `BENCH …` line.
+    Case {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Result file of the contact solve.
+        #[arg(long)]
+        out: PathBuf,
+        /// Only the floor: factorise the system matrix without contact and solve once.
+        #[arg(long)]
+        linear: bool,
+        /// Tolerances whose first iteration (and estimate when not reached) to report.
+        #[arg(long, value_delimiter = ',')]
+        tols: Vec<f64>,
+    },
+    /// Work–precision study: error against wall time (report, plots, CSV).
+    Study {
+        /// Studies whose runs carry errors against the exact solution (disk).
+        #[arg(long = "exact")]
+        exact: Vec<PathBuf>,
+        /// Studies measured against `--reference` (shell).
+        #[arg(long = "against")]
+        against: Vec<PathBuf>,
+        /// A study with one run: the reference solution of the `--against` studies.
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// Fields of the reference comparison.
+        #[arg(long, value_delimiter = ',', default_value = "u,r,psi,lambda")]
+        fields: Vec<String>,
+        #[arg(long, default_value = "build/study")]
+        out_dir: PathBuf,
+    },
+}
+
+/// Runs a `bench` subcommand.
+pub fn run(command: BenchCommand) -> Result<()> {
+    match command {
+        BenchCommand::Run {
+            config,
+            out_dir,
+            cap,
+        } => {
+            let mut cfg = BenchConfig::load(&config)?;
+            if let Some(c) = cap {
+                cfg.cap_seconds = c;
+            }
+            run_bench(&cfg, &config, &out_dir).map(|_| ())
+        }
+        BenchCommand::Case {
+            scene,
+            set,
+            out,
+            linear,
+            tols,
+        } => {
+            let line = run_case(&scene, &set, &out, linear, &tols)?;
+            println!("BENCH {line}");
+            Ok(())
+        }
+        BenchCommand::Study {
+            exact,
+            against,
+            reference,
+            fields,
+            out_dir,
+        } => work_precision(&exact, &against, reference.as_deref(), &fields, &out_dir),
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Configuration
+
+/// A benchmark configuration (`pipelines/bench/*.toml`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchConfig {
+    pub name: String,
+    /// Seconds per run for the iterative methods (Uzawa, …).
+    pub cap_seconds: f64,
+    /// Tolerances of the relative KKT measure, loosest first.
+    pub tolerances: Vec<f64>,
+    pub method: Vec<BenchMethod>,
+    pub problem: Vec<BenchProblem>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchMethod {
+    pub label: String,
+    /// Overrides selecting the method, e.g. ["solver.method=active-set"].
+    pub set: Vec<String>,
+    /// This method's cap (default: the configuration's).
+    pub cap_seconds: Option<f64>,
+    /// Cost of one iteration in floors: "solve" (one solve with the fixed
+    /// factorisation) or "factor" (a refactorisation, active-set).
+    #[serde(default = "default_cost")]
+    pub iteration_cost: String,
+    /// Once capped at a level, report the finer levels as `>cap` without
+    /// running them (default true).
+    #[serde(default = "default_true")]
+    pub skip_after_cap: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+fn default_cost() -> String {
+    "solve".into()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchProblem {
+    pub label: String,
+    /// Scene file, relative to the configuration file.
+    pub scene: String,
+    /// Overrides for every run of this problem.
+    #[serde(default)]
+    pub set: Vec<String>,
+    /// The level key (default "mesh.n") and its values.
+    #[serde(default = "default_key")]
+    pub key: String,
+    pub levels: Vec<toml::Value>,
+    /// Extra overrides per method label, e.g. uzawa = ["solver.alpha=0.01"].
+    #[serde(default)]
+    pub method_set: BTreeMap<String, Vec<String>>,
+    /// Methods run on this problem (default: all).
+    pub methods: Option<Vec<String>>,
+    /// Levels per method label (default: all levels); the others are "not run".
+    #[serde(default)]
+    pub method_levels: BTreeMap<String, Vec<toml::Value>>,
+}
+
+fn default_key() -> String {
+    "mesh.n".into()
+}
+
+impl BenchConfig {
+    pub fn load(path: &Path) -> Result<BenchConfig> {
+        let err = |field: &str, reason: String| Error::Scene {
+            file: path.to_path_buf(),
+            field: field.into(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| err("(file)", format!("cannot read: {e}")))?;
+        let table: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| err("(syntax)", e.to_string().replace('\n', " ")))?;
+        let cfg: BenchConfig = serde_path_to_error::deserialize(toml::Value::Table(table))
+            .map_err(|e| err(&e.path().to_string(), e.into_inner().to_string()))?;
+        if cfg.tolerances.is_empty() || cfg.tolerances.iter().any(|t| t.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)) {
+            return Err(err("tolerances", "at least one, all > 0".into()));
+        }
+        if cfg.cap_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return Err(err("cap_seconds", "must be > 0".into()));
+        }
+        for m in &cfg.method {
+            if m.iteration_cost != "solve" && m.iteration_cost != "factor" {
+                return Err(err(
+                    "method.iteration_cost",
+                    format!("`{}`: \"solve\" or \"factor\"", m.iteration_cost),
+                ));
+            }
+        }
+        Ok(cfg)
+    }
+}
+
+// ---------------------------------------------------------------------------
+// The child process
+
+/// Peak resident set size of this process (kB), from /proc/self/status VmHWM.
+pub fn peak_rss_kb() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
+/// The scene's model on a mesh (as the pipeline sets it up).
+fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSystem + 'm>> {
+    Ok(match scene.model {
+        Model::Membrane => Box::new(MembraneSystem::setup(mesh, scene)?),
+        Model::Naghdi => Box::new(NaghdiSystem::setup(mesh, scene)?),
+    })
+}
+
+/// One case; returns the `key=value` fields of its `BENCH` line.
+fn run_case(
+    scene_path: &Path,
+    set: &[String],
+    out: &Path,
+    linear: bool,
+    tols: &[f64],
+) -> Result<String> {
+    let start = Instant::now();
+    let scene = Scene::load(scene_path, set)?;
+    let mut f: Vec<(String, String)> = Vec::new();
+    if linear {
+        let dir = tempfile::tempdir().map_err(|e| {
+            Error::output(std::env::temp_dir(), format!("cannot create a temporary folder: {e}"))
+        })?;
+        let mesh = scene_mesh(&scene, &dir.path().join("mesh.msh"))?;
+        let system = setup_model(&scene, &mesh)?;
+        let problem = system.assemble(&scene)?;
+        let t = Instant::now();
+        let factorization = Factorization::new(&problem.matrix, problem.kind, "system matrix")?;
+        let factor = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mut x = problem.rhs.clone();
+        factorization.solve_in_place(&mut x);
+        let solve = t.elapsed().as_secs_f64();
+        f.push(("n_dofs".into(), system.n_dofs().to_string()));
+        f.push(("n_unknowns".into(), problem.n().to_string()));
+        f.push(("n_multipliers".into(), problem.n_multipliers().to_string()));
+        f.push(("factor_seconds".into(), format!("{factor:e}")));
+        f.push(("solve_seconds".into(), format!("{solve:e}")));
+        f.push(("seconds".into(), format!("{:e}", factor + solve)));
+    } else {
+        let s = run_scene(&scene, out, false)?;
+        let file = read_result(out)?;
+        let attr = |name: &str| solver_attr(&file, name);
+        f.push(("n_dofs".into(), s.n_dofs.to_string()));
+        f.push(("iterations".into(), s.iterations.to_string()));
+        f.push(("converged".into(), s.converged.to_string()));
+        f.push(("stop".into(), s.stop_reason.clone()));
+        f.push(("kkt".into(), format!("{:e}", s.measures.kkt)));
+        f.push((
+            "seconds".into(),
+            format!("{:e}", attr("wall_seconds").unwrap_or(f64::NAN)),
+        ));
+        f.push((
+            "factor_seconds".into(),
+            format!("{:e}", attr("factor_seconds").unwrap_or(f64::NAN)),
+        ));
+        let kkt = s.history.column("kkt").unwrap_or(&[]);
+        for &tol in tols {
+            let first = kkt.iter().position(|&v| v <= tol).map(|k| k + 1);
+            f.push((
+                format!("first_{tol:e}"),
+                first.map_or("-".into(), |k| k.to_string()),
+            ));
+            if first.is_none() {
+                if let Some(k) = extrapolate_iterations(kkt, tol) {
+                    f.push((format!("estimate_{tol:e}"), format!("{k:e}")));
+                }
+            }
+        }
+    }
+    f.push((
+        "total_seconds".into(),
+        format!("{:e}", start.elapsed().as_secs_f64()),
+    ));
+    f.push((
+        "peak_rss_kb".into(),
+        peak_rss_kb().map_or("-".into(), |v| v.to_string()),
+    ));
+    Ok(f.iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect::<Vec<_>>()
+        .join(" "))
+}
+
+fn solver_attr(file: &ResultFile, name: &str) -> Option<f64> {
+    file.data
+        .solver_attrs
+        .iter()
+        .find(|(k, _)| k == name)
+        .and_then(|(_, v)| match v {
+            AttrValue::F64(x) => Some(*x),
+            AttrValue::I64(x) => Some(*x as f64),
+            _ => None,
+        })
+}
+
+/// Iterations to reach `tol` when the KKT history keeps the linear rate of
+/// its second half: K + ln(tol/kkt_K)/ln ρ, ρ = (kkt_K/kkt_{K/2})^{1/(K−K/2)}.
+/// None when there is no decrease.
+pub fn extrapolate_iterations(kkt: &[f64], tol: f64) -> Option<f64> {
+    let k = kkt.len();
+    if k < 4 {
+        return None;
+    }
+    let (a, b) = (kkt[k / 2], kkt[k - 1]);
+    if !(a > 0.0 && b > 0.0 && b < a) {
+        return None;
+    }
+    let rho = (b / a).ln() / (k - 1 - k / 2) as f64;
+    Some(k as f64 + (tol / b).ln() / rho)
+}
+
+// ---------------------------------------------------------------------------
+// The driver
+
+/// One measured (or skipped) cell of the benchmark.
+#[derive(Debug, Clone, Default)]
+pub struct BenchRow {
+    pub problem: String,
+    pub level: String,
+    pub n_dofs: usize,
+    pub method: String,
+    pub tol: f64,
+    /// "converged", "capped" (lower bound), "not run" (capped at a coarser level),
+    /// "killed", "failed".
+    pub status: String,
+    pub iterations: Option<usize>,
+    pub seconds: f64,
+    pub factor_seconds: f64,
+    pub total_seconds: f64,
+    pub peak_rss_mb: f64,
+    pub kkt: f64,
+    pub floor_seconds: f64,
+    /// Capped runs: estimated seconds to the tolerance (linear rate of the KKT history).
+    pub estimate_seconds: Option<f64>,
+    pub note: String,
+}
+
+type Fields = BTreeMap<String, String>;
+
+fn parse_line(stdout: &str) -> Option<Fields> {
+    let line = stdout.lines().rev().find(|l| l.starts_with("BENCH "))?;
+    Some(
+        line["BENCH ".len()..]
+            .split_whitespace()
+            .filter_map(|kv| kv.split_once('='))
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect(),
+    )
+}
+
+fn num(f: &Fields, k: &str) -> f64 {
+    f.get(k).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN)
+}
+
+/// Runs `obstacle bench case …` and waits at most `limit`.
+fn child(
+    scene: &Path,
+    set: &[String],
+    out: &Path,
+    linear: bool,
+    tols: &[f64],
+    limit: Duration,
+) -> std::result::Result<Fields, String> {
+    let exe = std::env::current_exe().map_err(|e| format!("current_exe: {e}"))?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("bench").arg("case").arg(scene).arg("--out").arg(out);
+    for s in set {
+        cmd.arg("--set").arg(s);
+    }
+    if linear {
+        cmd.arg("--linear");
+    }
+    if !tols.is_empty() {
+        let t: Vec<String> = tols.iter().map(|t| format!("{t:e}")).collect();
+        cmd.arg("--tols").arg(t.join(","));
+    }
+    let stdout_path = out.with_extension("stdout");
+    let stderr_path = out.with_extension("stderr");
+    let so = std::fs::File::create(&stdout_path).map_err(|e| e.to_string())?;
+    let se = std::fs::File::create(&stderr_path).map_err(|e| e.to_string())?;
+    let mut proc = cmd
+        .stdout(Stdio::from(so))
+        .stderr(Stdio::from(se))
+        .spawn()
+        .map_err(|e| format!("cannot start the child: {e}"))?;
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = proc.try_wait().map_err(|e| e.to_string())? {
+            break s;
+        }
+        if start.elapsed() > limit {
+            let _ = proc.kill();
+            let _ = proc.wait();
+            return Err(format!("killed after {:.0} s", limit.as_secs_f64()));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let stdout = std::fs::read_to_string(&stdout_path).unwrap_or_default();
+    let stderr = std::fs::read_to_string(&stderr_path).unwrap_or_default();
+    if !status.success() {
+        let msg = stderr
+            .lines()
+            .rev()
+            .find(|l| l.starts_with("error"))
+            .unwrap_or("failed")
+            .to_string();
+        return Err(msg);
+    }
+    parse_line(&stdout).ok_or_else(|| "no BENCH line".to_string())
+}
+
+/// Runs the benchmark; prints and writes the table, CSV and plots.
+pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Result<Vec<BenchRow>> {
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| Error::output(out_dir, format!("cannot create: {e}")))?;
+    let runs_dir = out_dir.join("runs");
+    std::fs::create_dir_all(&runs_dir)
+        .map_err(|e| Error::output(&runs_dir, format!("cannot create: {e}")))?;
+    let base = config_path.parent().unwrap_or(Path::new("."));
+    let mut tols = cfg.tolerances.clone();
+    tols.sort_by(|a, b| b.total_cmp(a)); // loosest first
+    let tightest = *tols.last().expect("validated");
+    let mut rows: Vec<BenchRow> = Vec::new();
+    let mut floors: Vec<(String, String, usize, f64, f64)> = Vec::new();
+    for p in &cfg.problem {
+        let scene = base.join(&p.scene);
+        let mut capped_methods: Vec<String> = Vec::new();
+        for level in &p.levels {
+            let level_s = level.to_string();
+            let mut set = p.set.clone();
+            set.push(format!("{}={}", p.key, level_s));
+            let stem = format!("{}-{}-{}", cfg.name, p.label, level_s.replace('"', ""));
+            // The floor.
+            let out = runs_dir.join(format!("{stem}-linear.h5"));
+            let floor = child(&scene, &set, &out, true, &[], Duration::from_secs(3600));
+            let (floor_s, floor_factor, floor_solve, n_dofs, floor_mem) = match &floor {
+                Ok(f) => (
+                    num(f, "seconds"),
+                    num(f, "factor_seconds"),
+                    num(f, "solve_seconds"),
+                    num(f, "n_dofs") as usize,
+                    num(f, "peak_rss_kb") / 1024.0,
+                ),
+                Err(e) => {
+                    eprintln!("{stem}: the linear solve failed: {e}");
+                    (f64::NAN, f64::NAN, f64::NAN, 0, f64::NAN)
+                }
+            };
+            eprintln!(
+                "{} {}={}: floor {:.3} s (factor {:.3}, solve {:.4}), {} dofs, {:.0} MB",
+                p.label, p.key, level_s, floor_s, floor_factor, floor_solve, n_dofs, floor_mem
+            );
+            floors.push((p.label.clone(), level_s.clone(), n_dofs, floor_s, floor_mem));
+            for m in &cfg.method {
+                if p.methods.as_ref().is_some_and(|ms| !ms.contains(&m.label)) {
+                    continue;
+                }
+                let row0 = BenchRow {
+                    problem: p.label.clone(),
+                    level: level_s.clone(),
+                    n_dofs,
+                    method: m.label.clone(),
+                    floor_seconds: floor_s,
+                    seconds: f64::NAN,
+                    factor_seconds: f64::NAN,
+                    total_seconds: f64::NAN,
+                    peak_rss_mb: f64::NAN,
+                    kkt: f64::NAN,
+                    ..Default::default()
+                };
+                let cap = m.cap_seconds.unwrap_or(cfg.cap_seconds);
+                let excluded = p
+                    .method_levels
+                    .get(&m.label)
+                    .is_some_and(|ls| !ls.iter().any(|l| l.to_string() == level_s));
+                if excluded {
+                    for &tol in &tols {
+                        rows.push(BenchRow {
+                            tol,
+                            status: "not run".into(),
+                            seconds: cap,
+                            note: "level not in method_levels".into(),
+                            ..row0.clone()
+                        });
+                    }
+                    continue;
+                }
+                if capped_methods.contains(&m.label) {
+                    for &tol in &tols {
+                        rows.push(BenchRow {
+                            tol,
+                            status: "not run".into(),
+                            seconds: cap,
+                            note: "capped at a coarser level".into(),
+                            ..row0.clone()
+                        });
+                    }
+                    continue;
+                }
+                let mut mset = set.clone();
+                mset.extend(m.set.iter().cloned());
+                mset.extend(p.method_set.get(&m.label).cloned().unwrap_or_default());
+                mset.push("solver.stop=kkt".into());
+                // The cap as an iteration budget (calibrated on the floor).
+                let per_iter = if m.iteration_cost == "factor" {
+                    1.3 * floor_factor.max(1e-4) + floor_solve.max(1e-5)
+                } else {
+                    1.5 * floor_solve.max(1e-5)
+                };
+                let setup = if m.iteration_cost == "factor" {
+                    0.0
+                } else {
+                    floor_factor + 50.0 * floor_solve
+                };
+                let budget = if per_iter.is_finite() {
+                    (((cap - setup) / per_iter).floor()).clamp(1.0, 1e8) as usize
+                } else {
+                    100_000
+                };
+                let run = |tol: f64, max_iter: usize, tag: &str| {
+                    let mut s = mset.clone();
+                    s.push(format!("solver.tol={tol:e}"));
+                    s.push(format!("solver.max_iter={max_iter}"));
+                    let out = runs_dir.join(format!("{stem}-{}-{tag}.h5", m.label));
+                    child(
+                        &scene,
+                        &s,
+                        &out,
+                        false,
+                        &tols,
+                        Duration::from_secs_f64(3.0 * cap + 120.0),
+                    )
+                };
+                let tight = run(tightest, budget, "tight");
+                let fields = match tight {
+                    Ok(f) => f,
+                    Err(e) => {
+                        let killed = e.starts_with("killed");
+                        eprintln!("  {}: {e}", m.label);
+                        for &tol in &tols {
+                            rows.push(BenchRow {
+                                tol,
+                                status: if killed { "killed" } else { "failed" }.into(),
+                                seconds: if killed { 3.0 * cap + 120.0 } else { f64::NAN },
+                                note: e.clone(),
+                                ..row0.clone()
+                            });
+                        }
+                        if killed {
+                            capped_methods.push(m.label.clone());
+                        }
+                        continue;
+                    }
+                };
+                let iterations = num(&fields, "iterations") as usize;
+                let converged = fields.get("converged").map(String::as_str) == Some("true");
+                let t_iter = {
+                    let s = num(&fields, "seconds");
+                    let fs = num(&fields, "factor_seconds");
+                    if m.iteration_cost == "factor" {
+                        s / iterations.max(1) as f64
+                    } else {
+                        (s - fs) / iterations.max(1) as f64
+                    }
+                };
+                let measured = |f: &Fields, tol: f64, status: &str| BenchRow {
+                    tol,
+                    status: status.into(),
+                    iterations: Some(num(f, "iterations") as usize),
+                    seconds: num(f, "seconds"),
+                    factor_seconds: num(f, "factor_seconds"),
+                    total_seconds: num(f, "total_seconds"),
+                    peak_rss_mb: num(f, "peak_rss_kb") / 1024.0,
+                    kkt: num(f, "kkt"),
+                    ..row0.clone()
+                };
+                if !converged && m.skip_after_cap {
+                    capped_methods.push(m.label.clone());
+                }
+                for &tol in &tols {
+                    let first = fields
+                        .get(&format!("first_{tol:e}"))
+                        .and_then(|v| v.parse::<usize>().ok());
+                    let row = if tol == tightest || (first == Some(iterations) && converged) {
+                        let mut r = measured(
+                            &fields,
+                            tol,
+                            if converged { "converged" } else { "capped" },
+                        );
+                        if !converged {
+                            r.estimate_seconds = fields
+                                .get(&format!("estimate_{tol:e}"))
+                                .and_then(|v| v.parse::<f64>().ok())
+                                .map(|k| {
+                                    let fs = num(&fields, "factor_seconds");
+                                    fs + k * t_iter
+                                });
+                        }
+                        r
+                    } else if let Some(k) = first {
+                        // Reached inside the tight run: rerun to exactly there.
+                        match run(tol, k, "loose") {
+                            Ok(f) => {
+                                let ok = f.get("converged").map(String::as_str) == Some("true");
+                                measured(&f, tol, if ok { "converged" } else { "capped" })
+                            }
+                            Err(e) => BenchRow {
+                                tol,
+                                status: "failed".into(),
+                                note: e,
+                                ..row0.clone()
+                            },
+                        }
+                    } else {
+                        // Not reached before the cap: lower bound and estimate.
+                        let mut r = measured(&fields, tol, "capped");
+                        r.estimate_seconds = fields
+                            .get(&format!("estimate_{tol:e}"))
+                            .and_then(|v| v.parse::<f64>().ok())
+                            .map(|k| num(&fields, "factor_seconds") + k * t_iter);
+                        r
+                    };
+                    eprintln!(
+                        "  {:<18} tol {:.0e}: {:<9} {:>7} it  {:>9.3} s  {:>7.0} MB  kkt {:.1e}",
+                        m.label,
+                        tol,
+                        row.status,
+                        row.iterations.map_or("-".into(), |k| k.to_string()),
+                        row.seconds,
+                        row.peak_rss_mb,
+                        row.kkt
+                    );
+                    rows.push(row);
+                }
+            }
+        }
+    }
+    let md = bench_markdown(cfg, &rows, &floors);
+    print!("{md}");
+    write(&out_dir.join(format!("{}.md", cfg.name)), &md)?;
+    write(&out_dir.join(format!("{}.csv", cfg.name)), &bench_csv(&rows))?;
+    for f in bench_plots(cfg, &rows, &floors, out_dir)? {
+        println!("plot: {}", f.display());
+    }
+    Ok(rows)
+}
+
+fn write(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).map_err(|e| Error::output(path, format!("cannot write: {e}")))
+}
+
+/// Seconds with three significant digits.
+fn secs(t: f64) -> String {
+    if !t.is_finite() {
+        "–".into()
+    } else if t >= 100.0 {
+        format!("{t:.0}")
+    } else if t >= 0.01 {
+        format!("{:.*}", (2.0 - t.log10().floor()).max(0.0) as usize, t)
+    } else {
+        format!("{t:.2e}")
+    }
+}
+
+fn fmt_time(r: &BenchRow) -> String {
+    match r.status.as_str() {
+        "converged" => secs(r.seconds),
+        "capped" | "killed" | "not run" => format!(">{}", secs(r.seconds)),
+        _ => "failed".into(),
+    }
+}
+
+/// The table: one row per (problem, level, method), the tolerances side by side.
+pub fn bench_markdown(
+    cfg: &BenchConfig,
+    rows: &[BenchRow],
+    floors: &[(String, String, usize, f64, f64)],
+) -> String {
+    let mut tols: Vec<f64> = cfg.tolerances.clone();
+    tols.sort_by(|a, b| b.total_cmp(a));
+    let mut md = format!(
+        "## Benchmark `{}`: time to the relative KKT measure (cap {} s per run unless stated)\n\n",
+        cfg.name, cfg.cap_seconds
+    );
+    md.push_str("Times: solver wall time (factorisations + iterations), seconds; `>t`: capped (lower bound); est.: extrapolated from the KKT rate of the capped run. Memory: peak RSS (VmHWM) of the child process of the run. ×floor: time / (one factorisation + one solve without contact).\n\n");
+    let mut head = vec!["problem", "level", "dofs", "method"]
+        .into_iter()
+        .map(String::from)
+        .collect::<Vec<_>>();
+    for t in &tols {
+        head.push(format!("it ({t:.0e})"));
+        head.push(format!("time ({t:.0e})"));
+        head.push(format!("×floor ({t:.0e})"));
+        head.push(format!("MB ({t:.0e})"));
+    }
+    head.push("est. time (loosest)".into());
+    let _ = writeln!(md, "| {} |", head.join(" | "));
+    let _ = writeln!(md, "|{}", "---|".repeat(head.len()));
+    for (prob, level, dofs, floor, mem) in floors {
+        let _ = writeln!(
+            md,
+            "| {prob} | {level} | {dofs} | **linear solve (floor)** | 1 | {} | 1 | {mem:.0} |{}",
+            secs(*floor),
+            " | | | |".repeat(tols.len() - 1) + " |"
+        );
+        let methods: Vec<String> = cfg.method.iter().map(|m| m.label.clone()).collect();
+        for m in &methods {
+            let cells: Vec<&BenchRow> = tols
+                .iter()
+                .filter_map(|t| {
+                    rows.iter().find(|r| {
+                        &r.problem == prob && &r.level == level && &r.method == m && r.tol == *t
+                    })
+                })
+                .collect();
+            if cells.is_empty() {
+                continue;
+            }
+            let mut line = vec![prob.clone(), level.clone(), dofs.to_string(), m.clone()];
+            for r in &cells {
+                line.push(r.iterations.map_or("–".into(), |k| {
+                    if r.status == "converged" {
+                        k.to_string()
+                    } else {
+                        format!(">{k}")
+                    }
+                }));
+                line.push(fmt_time(r));
+                let ratio = r.seconds / r.floor_seconds;
+                line.push(if r.status == "converged" {
+                    format!("{ratio:.1}")
+                } else if ratio.is_finite() {
+                    format!(">{ratio:.0}")
+                } else {
+                    "–".into()
+                });
+                line.push(if r.peak_rss_mb.is_finite() {
+                    format!("{:.0}", r.peak_rss_mb)
+                } else {
+                    "–".into()
+                });
+            }
+            line.push(
+                cells
+                    .first()
+                    .and_then(|r| r.estimate_seconds)
+                    .map_or("".into(), |e| format!("~{e:.3e}")),
+            );
+            let _ = writeln!(md, "| {} |", line.join(" | "));
+        }
+    }
+    md.push_str(&targets(cfg, rows));
+    md
+}
+
+/// The issue's targets, checked on the rows.
+pub fn targets(cfg: &BenchConfig, rows: &[BenchRow]) -> String {
+    let mut md = String::from("\n### Targets\n\n");
+    let tightest = cfg
+        .tolerances
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    let as_rows: Vec<&BenchRow> = rows
+        .iter()
+        .filter(|r| r.method == "active-set" && r.tol == tightest)
+        .collect();
+    if !as_rows.is_empty() {
+        let _ = writeln!(
+            md,
+            "1. active-set to {tightest:.0e} within 10× the linear solve at every size:"
+        );
+        let mut all = true;
+        for r in &as_rows {
+            let ratio = r.seconds / r.floor_seconds;
+            let ok = r.status == "converged" && ratio <= 10.0;
+            all &= ok;
+            let _ = writeln!(
+                md,
+                "   - {} {}: {}{:.1}× ({} iterations, {} s vs floor {} s, {:.0}% of it in factorisations) — {}",
+                r.problem,
+                r.level,
+                if r.status == "converged" { "" } else { ">" },
+                ratio,
+                r.iterations.map_or("?".into(), |k| k.to_string()),
+                secs(r.seconds),
+                secs(r.floor_seconds),
+                100.0 * r.factor_seconds / r.seconds,
+                if ok { "met" } else { "NOT met" }
+            );
+        }
+        let _ = writeln!(md, "   - overall: {}", if all { "met" } else { "NOT met" });
+    }
+    let loose = 1e-6;
+    {
+        let prob = "shell";
+        let find = |m: &str| {
+            rows.iter()
+                .find(|r| r.problem == prob && r.level == "64" && r.method == m && r.tol == loose)
+        };
+        if let (Some(a), Some(u)) = (find("active-set"), find("uzawa")) {
+            let ratio = u.seconds / a.seconds;
+            let est = u.estimate_seconds.map(|e| e / a.seconds);
+            let _ = writeln!(
+                md,
+                "2. active-set ≥ 1000× faster than thesis Uzawa (α = 0.01) to 1e-6 at {prob} n = 64: Uzawa {} s, active-set {} s: ratio {}{ratio:.1}{}{} — {}",
+                fmt_time(u),
+                fmt_time(a),
+                if u.status == "converged" { "" } else { "> " },
+                if a.status == "converged" { "" } else { " (active-set capped too)" },
+                est.map_or(String::new(), |e| format!(" (estimated from the KKT rate: ~{e:.0})")),
+                if u.status == "converged" && a.status == "converged" {
+                    if ratio >= 1000.0 { "met" } else { "NOT met" }
+                } else if ratio >= 1000.0 {
+                    "met (lower bound)"
+                } else if est.is_some_and(|e| e >= 1000.0) {
+                    "met by the estimate only (the lower bound is below 1000)"
+                } else {
+                    "not shown"
+                }
+            );
+        }
+    }
+    md
+}
+
+pub fn bench_csv(rows: &[BenchRow]) -> String {
+    let mut csv = String::from("problem,level,n_dofs,method,tol,status,iterations,seconds,factor_seconds,total_seconds,peak_rss_mb,kkt,floor_seconds,ratio_to_floor,estimate_seconds,note\n");
+    for r in rows {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{:e},{},{},{:e},{:e},{:e},{:.1},{:e},{:e},{:e},{},{}",
+            r.problem,
+            r.level,
+            r.n_dofs,
+            r.method,
+            r.tol,
+            r.status,
+            r.iterations.map_or(String::new(), |k| k.to_string()),
+            r.seconds,
+            r.factor_seconds,
+            r.total_seconds,
+            r.peak_rss_mb,
+            r.kkt,
+            r.floor_seconds,
+            r.seconds / r.floor_seconds,
+            r.estimate_seconds.map_or(String::new(), |e| format!("{e:e}")),
+            r.note.replace(',', ";")
+        );
+    }
+    csv
+}
+
+/// Time against the level, log–log, one figure per (problem, tolerance): a
+/// curve per method (converged runs only) and the floor.
+fn bench_plots(
+    cfg: &BenchConfig,
+    rows: &[BenchRow],
+    floors: &[(String, String, usize, f64, f64)],
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let problems: Vec<String> = cfg.problem.iter().map(|p| p.label.clone()).collect();
+    for prob in &problems {
+        for &tol in &cfg.tolerances {
+            let mut series: Vec<(String, Vec<(f64, f64)>)> = cfg
+                .method
+                .iter()
+                .map(|m| {
+                    let pts = rows
+                        .iter()
+                        .filter(|r| {
+                            &r.problem == prob
+                                && r.method == m.label
+                                && r.tol == tol
+                                && r.status == "converged"
+                        })
+                        .filter_map(|r| r.level.parse::<f64>().ok().map(|n| (n, r.seconds)))
+                        .collect();
+                    (m.label.clone(), pts)
+                })
+                .filter(|(_, p): &(String, Vec<(f64, f64)>)| !p.is_empty())
+                .collect();
+            series.push((
+                "linear solve (floor)".into(),
+                floors
+                    .iter()
+                    .filter(|f| &f.0 == prob)
+                    .filter_map(|f| f.1.parse::<f64>().ok().map(|n| (n, f.3)))
+                    .collect(),
+            ));
+            let path = out_dir.join(format!("{}-{prob}-{tol:.0e}.png", cfg.name));
+            plot::plot_convergence(
+                &path,
+                &series,
+                "n (mesh level)",
+                "solver wall time [s]",
+                &format!("{prob}: time to KKT ≤ {tol:.0e} (converged runs)"),
+                &[],
+            )?;
+            files.push(path);
+        }
+    }
+    Ok(files)
+}
+
+// ---------------------------------------------------------------------------
+// Work–precision
+
+/// The error measures of a study run, by name.
+type ErrorsOf<'a> = dyn FnMut(&StudyRow) -> Result<Vec<(String, f64)>> + 'a;
+
+/// One point of a work–precision diagram.
+#[derive(Debug, Clone)]
+pub struct WpPoint {
+    pub element: String,
+    pub method: String,
+    pub level: String,
+    pub tol: f64,
+    pub seconds: f64,
+    pub iterations: usize,
+    /// (measure, error)
+    pub errors: Vec<(String, f64)>,
+}
+
+fn label(row: &StudyRow, key: &str) -> Option<String> {
+    row.labels
+        .iter()
+        .find(|(k, _)| k == key)
+        .map(|(_, v)| v.trim_matches('"').to_string())
+}
+
+/// The solver wall time of a run (from its result file).
+fn run_seconds(row: &StudyRow) -> Result<f64> {
+    let f = read_result(&row.summary.result_file)?;
+    Ok(solver_attr(&f, "wall_seconds").unwrap_or(row.summary.wall_seconds))
+}
+
+fn study_scene_value(study: &Study, study_path: &Path, key: &str) -> Option<String> {
+    let scene = Scene::load(
+        &study_path.parent().unwrap_or(Path::new(".")).join(&study.scene),
+        &study.set,
+    )
+    .ok()?;
+    match key {
+        "element" => Some(scene.element.name().to_string()),
+        "solver.method" => Some(scene.solver.method.name().to_string()),
+        _ => None,
+    }
+}
+
+fn study_points(
+    path: &Path,
+    out_dir: &Path,
+    errors: &mut ErrorsOf,
+) -> Result<Vec<WpPoint>> {
+    let study = Study::load(path)?;
+    eprintln!("study {} ({} runs)", study.name, study.runs().len());
+    let rows = run_study(path, out_dir, false)?;
+    let element0 = study_scene_value(&study, path, "element").unwrap_or_default();
+    let method0 = study_scene_value(&study, path, "solver.method").unwrap_or_default();
+    let mut pts = Vec::new();
+    for row in rows.iter() {
+        if row.failure.is_some() {
+            eprintln!("  failed: {:?}", row.failure);
+            continue;
+        }
+        let tol = label(row, "solver.tol")
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(f64::NAN);
+        pts.push(WpPoint {
+            element: label(row, "element").unwrap_or_else(|| element0.clone()),
+            method: label(row, "solver.method").unwrap_or_else(|| method0.clone()),
+            level: label(row, "mesh.n").unwrap_or_default(),
+            tol,
+            seconds: run_seconds(row)?,
+            iterations: row.summary.iterations,
+            errors: errors(row)?,
+        });
+    }
+    Ok(pts)
+}
+
+/// `make study`: work–precision diagrams and the algebraic/discretisation balance.
+pub fn work_precision(
+    exact: &[PathBuf],
+    against: &[PathBuf],
+    reference: Option<&Path>,
+    fields: &[String],
+    out_dir: &Path,
+) -> Result<()> {
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| Error::output(out_dir, format!("cannot create: {e}")))?;
+    let runs = out_dir.join("runs");
+    let mut md = String::from("# Work–precision: what accuracy costs in time\n\nGenerated by `make study` (`obstacle bench study`). Time: the solver's wall time (factorisations + iterations; meshing, assembly and output excluded), one run per point. Points: mesh level × solver tolerance (relative KKT measure).\n");
+    let mut csv = String::from("part,element,method,level,tol,seconds,iterations,measure,error\n");
+    let mut parts: Vec<(String, Vec<WpPoint>)> = Vec::new();
+    let mut disk = Vec::new();
+    for p in exact {
+        disk.extend(study_points(p, &runs, &mut |row: &StudyRow| {
+            let s = &row.summary;
+            Ok(s.errors
+                .map(|e| {
+                    vec![
+                        ("L2 u".to_string(), e.l2),
+                        ("H1 u".to_string(), e.h1),
+                        (
+                            "contact radius".to_string(),
+                            (e.contact_radius - e.exact_contact_radius).abs(),
+                        ),
+                    ]
+                })
+                .unwrap_or_default())
+        })?);
+    }
+    if !disk.is_empty() {
+        parts.push(("disk (errors against the exact solution)".into(), disk));
+    }
+    if let Some(r) = reference {
+        let rows = run_study(r, &runs, false)?;
+        let rrow = rows
+            .iter()
+            .find(|r| r.failure.is_none())
+            .ok_or_else(|| Error::output(r, "the reference run failed"))?;
+        let ref_path = rrow.summary.result_file.clone();
+        let ref_file = read_result(&ref_path)?;
+        let _ = writeln!(
+            md,
+            "\nShell reference: {} ({} dofs, h = {:.3}, {} iterations, KKT {:.1e}, {:.1} s).",
+            ref_path.display(),
+            rrow.summary.n_dofs,
+            rrow.summary.h,
+            rrow.summary.iterations,
+            rrow.summary.measures.kkt,
+            run_seconds(rrow)?
+        );
+        let mut shell = Vec::new();
+        for p in against {
+            shell.extend(study_points(p, &runs, &mut |row: &StudyRow| {
+                let f = read_result(&row.summary.result_file)?;
+                let e = relative_errors(
+                    (&f, &row.summary.result_file),
+                    (&ref_file, &ref_path),
+                    fields,
+                )?;
+                Ok(group_components(&e))
+            })?);
+        }
+        if !shell.is_empty() {
+            parts.push(("shell (relative L² errors against the reference)".into(), shell));
+        }
+    }
+    for (k, (title, pts)) in parts.iter().enumerate() {
+        let tag = if k == 0 && !exact.is_empty() { "disk" } else { "shell" };
+        let _ = writeln!(md, "\n## {title}\n");
+        let measures: Vec<String> = pts
+            .first()
+            .map(|p| p.errors.iter().map(|(n, _)| n.clone()).collect())
+            .unwrap_or_default();
+        for p in pts {
+            for (m, e) in &p.errors {
+                let _ = writeln!(
+                    csv,
+                    "{tag},{},{},{},{:e},{:e},{},{m},{e:e}",
+                    p.element, p.method, p.level, p.tol, p.seconds, p.iterations
+                );
+            }
+        }
+        let mut curves: Vec<(String, String)> = Vec::new();
+        for p in pts {
+            let c = (p.element.clone(), p.method.clone());
+            if !curves.contains(&c) {
+                curves.push(c);
+            }
+        }
+        for (mi, measure) in measures.iter().enumerate() {
+            let series: Vec<(String, Vec<(f64, f64)>)> = curves
+                .iter()
+                .map(|(el, me)| {
+                    (
+                        format!("{el} {me}"),
+                        pts.iter()
+                            .filter(|p| &p.element == el && &p.method == me)
+                            .map(|p| (p.seconds, p.errors[mi].1))
+                            .collect(),
+                    )
+                })
+                .collect();
+            let file = format!("wp-{tag}-{}.png", measure.replace([' ', '/'], "_"));
+            plot::plot_convergence(
+                &out_dir.join(&file),
+                &series,
+                "solver wall time [s]",
+                &format!("error: {measure}"),
+                &format!("{tag}: {measure} error vs time"),
+                &[],
+            )?;
+            let _ = writeln!(md, "![{measure}]({file})\n");
+        }
+        // Every point.
+        let _ = writeln!(
+            md,
+            "| element | method | n | tol | iter | time [s] | {} |",
+            measures.join(" | ")
+        );
+        let _ = writeln!(md, "|{}", "---|".repeat(6 + measures.len()));
+        for p in pts {
+            let errs: Vec<String> = p.errors.iter().map(|(_, e)| format!("{e:.3e}")).collect();
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.0e} | {} | {:.4} | {} |",
+                p.element,
+                p.method,
+                p.level,
+                p.tol,
+                p.iterations,
+                p.seconds,
+                errs.join(" | ")
+            );
+        }
+        md.push_str(&balance(pts, &measures));
+    }
+    write(&out_dir.join("report.md"), &md)?;
+    write(&out_dir.join("work-precision.csv"), &csv)?;
+    println!("{md}");
+    println!("report: {}", out_dir.join("report.md").display());
+    Ok(())
+}
+
+/// Shell components grouped as the issue asks: u_β (u1, u2), u3, r, ψ, λ
+/// (vector components combined as the root of the sum of squares).
+fn group_components(e: &[(String, f64)]) -> Vec<(String, f64)> {
+    let get = |names: &[&str]| -> Option<f64> {
+        let v: Vec<f64> = e
+            .iter()
+            .filter(|(n, _)| names.contains(&n.as_str()))
+            .map(|(_, x)| *x)
+            .collect();
+        (!v.is_empty()).then(|| v.iter().map(|x| x * x).sum::<f64>().sqrt())
+    };
+    let mut out = Vec::new();
+    for (name, parts) in [
+        ("u_beta", &["u1", "u2"][..]),
+        ("u3", &["u3"][..]),
+        ("r", &["r1", "r2", "r3", "r"][..]),
+        ("psi", &["psi"][..]),
+        ("lambda", &["lambda"][..]),
+    ] {
+        if let Some(x) = get(parts) {
+            out.push((name.to_string(), x));
+        }
+    }
+    out
+}
+
+/// Per (element, method, level): the loosest tolerance whose errors are all
+/// within 5% of the tightest tolerance's, and the time it saves.
+pub fn balance(pts: &[WpPoint], measures: &[String]) -> String {
+    let mut md = String::from("\n### Algebraic vs discretisation error\n\nPer (element, solver, level): the loosest tolerance whose errors (every measure) are within 5% of those at the tightest tolerance, and its time against the tightest.\n\n| element | method | n | tightest tol | its time [s] | loosest sufficient tol | its time [s] | saved |\n|---|---|---|---|---|---|---|---|\n");
+    let mut keys: Vec<(String, String, String)> = Vec::new();
+    for p in pts {
+        let k = (p.element.clone(), p.method.clone(), p.level.clone());
+        if !keys.contains(&k) {
+            keys.push(k);
+        }
+    }
+    for (el, me, lv) in keys {
+        let mut group: Vec<&WpPoint> = pts
+            .iter()
+            .filter(|p| p.element == el && p.method == me && p.level == lv)
+            .collect();
+        group.sort_by(|a, b| a.tol.total_cmp(&b.tol)); // tightest first
+        let Some(tight) = group.first() else { continue };
+        let ok = |p: &WpPoint| {
+            p.errors
+                .iter()
+                .zip(&tight.errors)
+                .all(|((_, e), (_, t))| (e - t).abs() <= 0.05 * t.abs().max(1e-300))
+        };
+        // The loosest tolerance such that it and every tighter one are fine.
+        let mut best = *tight;
+        for p in &group {
+            if ok(p) {
+                best = p;
+            } else {
+                break;
+            }
+        }
+        let _ = writeln!(
+            md,
+            "| {el} | {me} | {lv} | {:.0e} | {:.4} | {:.0e} | {:.4} | {:.0}% |",
+            tight.tol,
+            tight.seconds,
+            best.tol,
+            best.seconds,
+            100.0 * (1.0 - best.seconds / tight.seconds)
+        );
+    }
+    let _ = measures;
+    md
+}

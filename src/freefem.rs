@@ -1,0 +1,699 @@
+//! The FreeFEM twin of a scene: `freefem/membrane-obstacle.edp` or
+//! `freefem/naghdi-contact.edp` run on the very mesh file the Rust run uses,
+//! with every parameter taken from the scene and passed on the command line
+//! (`getARGV`), and its text output converted to a SPEC §5 result file with
+//! the field and dof names of the Rust run (so `obstacle info` and
+//! `obstacle compare` read both alike).
+//!
+//! The scripts run Uzawa only. How a scene's stop maps (see [`uzawa_plan`]):
+//! `--iterations K` runs exactly K iterations; otherwise `stop = "thesis"`
+//! runs the scene's thesis criterion (‖λ^k − λ^{k−1}‖ < thesis_tol in
+//! `dual_norm`, at most max_iter iterations), as Rust does; `stop = "kkt"`
+//! (FreeFEM does not compute the KKT measures) runs exactly
+//! min(max_iter, [`KKT_FIXED_ITERATIONS`]) iterations. `alpha = "auto"` is
+//! resolved by the Rust Lanczos estimate (the number the Rust run uses).
+//!
+//! The helpers that run FreeFEM and read its text files are public: the
+//! FreeFEM tests use the same code.
+
+use crate::error::{Error, Result};
+use crate::linalg::factorize_checked;
+use crate::mesh::Mesh;
+use crate::models::naghdi::geometry::Chart;
+use crate::models::{contact_fields, vertex_field};
+use crate::output::{write_result, AttrValue, Field, Location, ResultData};
+use crate::pipeline::scene_mesh;
+use crate::scene::{Alpha, AlphaKeyword, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule};
+use crate::solvers::spectrum::estimate_dual_spectrum;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Instant;
+
+/// The FreeFEM executable.
+pub const FREEFEM: &str = "FreeFem++";
+/// Where Debian's FreeFEM plugins (gmsh reader) live; `FF_LOADPATH` overrides.
+pub const DEFAULT_LOADPATH: &str = "/usr/lib/freefem++";
+/// Iterations run for a scene that stops on the KKT measures (FreeFEM has none).
+pub const KKT_FIXED_ITERATIONS: usize = 1000;
+/// The algorithm name written to `/solver`.
+pub const ALGORITHM: &str = "uzawa (FreeFEM)";
+
+/// The folder of the FreeFEM scripts: `$OBSTACLE_FREEFEM_DIR`, else the
+/// crate's `freefem/`.
+pub fn script_dir() -> PathBuf {
+    std::env::var_os("OBSTACLE_FREEFEM_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("freefem"))
+}
+
+/// The script of a model.
+pub fn script_for(model: Model) -> PathBuf {
+    script_dir().join(match model {
+        Model::Membrane => "membrane-obstacle.edp",
+        Model::Naghdi => "naghdi-contact.edp",
+    })
+}
+
+fn tool_error(script: &Path, reason: impl Into<String>) -> Error {
+    Error::Tool {
+        tool: format!("{FREEFEM} {}", script.display()),
+        reason: reason.into(),
+    }
+}
+
+/// The last `n` lines of a process output.
+fn tail(bytes: &[u8], n: usize) -> String {
+    let text = String::from_utf8_lossy(bytes);
+    let lines: Vec<&str> = text.lines().collect();
+    lines[lines.len().saturating_sub(n)..].join("\n")
+}
+
+/// Runs `FF_LOADPATH=… FreeFem++ -nw -v 0 SCRIPT ARGS` (single-threaded BLAS,
+/// so timings compare with the Rust side). Returns the output and the wall
+/// time of the whole process. A missing FreeFEM or gmsh plugin is an
+/// [`Error::Tool`]; a failing script is not (see [`run_script_checked`]).
+pub fn run_script(script: &Path, args: &[String]) -> Result<(Output, f64)> {
+    let loadpath = std::env::var("FF_LOADPATH").unwrap_or_else(|_| DEFAULT_LOADPATH.into());
+    let plugin = Path::new(&loadpath).join("gmsh.so");
+    if !plugin.is_file() {
+        return Err(tool_error(
+            script,
+            format!(
+                "FreeFEM's gmsh plugin {} is missing (Debian package libfreefem++; `make deps`)",
+                plugin.display()
+            ),
+        ));
+    }
+    let start = Instant::now();
+    let out = Command::new(FREEFEM)
+        .env("FF_LOADPATH", &loadpath)
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .env("OMP_NUM_THREADS", "1")
+        .args(["-nw", "-v", "0"])
+        .arg(script)
+        .args(args)
+        .output()
+        .map_err(|e| {
+            tool_error(
+                script,
+                format!("cannot run {FREEFEM} ({e}): install the Debian packages freefem++ libfreefem++ (`make deps`)"),
+            )
+        })?;
+    Ok((out, start.elapsed().as_secs_f64()))
+}
+
+/// [`run_script`], and an [`Error::Tool`] naming the script and the tail of
+/// its output when it fails.
+pub fn run_script_checked(script: &Path, args: &[String]) -> Result<f64> {
+    let (out, seconds) = run_script(script, args)?;
+    if !out.status.success() {
+        return Err(tool_error(
+            script,
+            format!(
+                "failed ({}); stderr tail:\n{}\nstdout tail:\n{}",
+                out.status,
+                tail(&out.stderr, 15),
+                tail(&out.stdout, 15)
+            ),
+        ));
+    }
+    Ok(seconds)
+}
+
+/// A text file of whitespace-separated numbers.
+pub fn read_numbers(path: &Path) -> Result<Vec<f64>> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::output(path, format!("cannot read: {e}")))?;
+    text.split_whitespace()
+        .map(|s| {
+            s.parse::<f64>()
+                .map_err(|e| Error::output(path, format!("bad number {s:?}: {e}")))
+        })
+        .collect()
+}
+
+/// A `PREFIX.info.txt` file: "key value" lines.
+#[derive(Debug, Clone)]
+pub struct Info {
+    pub path: PathBuf,
+    pub values: HashMap<String, String>,
+}
+
+impl Info {
+    pub fn read(path: &Path) -> Result<Info> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Error::output(path, format!("cannot read: {e}")))?;
+        let values = text
+            .lines()
+            .filter_map(|l| l.split_once(' '))
+            .map(|(k, v)| (k.to_string(), v.trim().to_string()))
+            .collect();
+        Ok(Info {
+            path: path.to_path_buf(),
+            values,
+        })
+    }
+    pub fn text(&self, key: &str) -> Result<&str> {
+        self.values
+            .get(key)
+            .map(String::as_str)
+            .ok_or_else(|| Error::output(&self.path, format!("has no `{key}`")))
+    }
+    pub fn f64(&self, key: &str) -> Result<f64> {
+        let v = self.text(key)?;
+        v.parse()
+            .map_err(|e| Error::output(&self.path, format!("`{key}`: bad number {v:?}: {e}")))
+    }
+    pub fn usize(&self, key: &str) -> Result<usize> {
+        let v = self.text(key)?;
+        v.parse()
+            .map_err(|e| Error::output(&self.path, format!("`{key}`: bad count {v:?}: {e}")))
+    }
+}
+
+/// A mesh as FreeFEM listed it: vertices and triangles.
+pub type MeshText = (Vec<[f64; 2]>, Vec<[usize; 3]>);
+
+/// `PREFIX.mesh.txt`: "nv nt", nv lines "x y", nt lines "a b c" (zero-based).
+pub fn read_mesh_text(path: &Path) -> Result<MeshText> {
+    let v = read_numbers(path)?;
+    let bad = || {
+        Error::output(
+            path,
+            "not a FreeFEM mesh listing \"nv nt\", vertices, triangles",
+        )
+    };
+    if v.len() < 2 {
+        return Err(bad());
+    }
+    let (nv, nt) = (v[0] as usize, v[1] as usize);
+    if v.len() != 2 + 2 * nv + 3 * nt {
+        return Err(bad());
+    }
+    let verts = (0..nv).map(|i| [v[2 + 2 * i], v[3 + 2 * i]]).collect();
+    let o = 2 + 2 * nv;
+    let tris = (0..nt)
+        .map(|t| std::array::from_fn(|j| v[o + 3 * t + j] as usize))
+        .collect();
+    Ok((verts, tris))
+}
+
+/// Checks that FreeFEM read `mesh` in our order: same vertices (to 1e-15
+/// relative to the mesh size), same triangles with the same vertex order.
+pub fn check_mesh_order(mesh: &Mesh, path: &Path) -> Result<()> {
+    let (verts, tris) = read_mesh_text(path)?;
+    let fail = |r: String| Error::mesh(&mesh.source, format!("FreeFEM ({}) {r}", path.display()));
+    if verts.len() != mesh.n_vertices() || tris.len() != mesh.n_triangles() {
+        return Err(fail(format!(
+            "read {} vertices and {} triangles, the Rust mesh has {} and {}",
+            verts.len(),
+            tris.len(),
+            mesh.n_vertices(),
+            mesh.n_triangles()
+        )));
+    }
+    let scale = mesh
+        .vertices
+        .iter()
+        .fold(1.0f64, |m, v| m.max(v[0].abs()).max(v[1].abs()));
+    for (i, (a, b)) in verts.iter().zip(&mesh.vertices).enumerate() {
+        if (a[0] - b[0]).abs() > 1e-15 * scale || (a[1] - b[1]).abs() > 1e-15 * scale {
+            return Err(fail(format!(
+                "vertex {i} is {a:?}, Rust has {b:?}: the vertex orders differ"
+            )));
+        }
+    }
+    if let Some(t) = (0..tris.len()).find(|&t| tris[t] != mesh.triangles[t]) {
+        return Err(fail(format!(
+            "triangle {t} is {:?}, Rust has {:?}: the triangle (or in-triangle vertex) orders differ",
+            tris[t], mesh.triangles[t]
+        )));
+    }
+    Ok(())
+}
+
+/// How the FreeFEM Uzawa iteration runs for a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UzawaPlan {
+    pub alpha: f64,
+    pub step_form: StepForm,
+    /// Exactly this many iterations, or at most this many with `thesis_tol`.
+    pub iterations: usize,
+    /// Some((tol, "l2"|"inf")): stop on the thesis criterion.
+    pub thesis_stop: Option<(f64, &'static str)>,
+}
+
+fn scene_error(scene: &Scene, field: &str, reason: impl Into<String>) -> Error {
+    Error::Scene {
+        file: scene.source.clone(),
+        field: field.into(),
+        reason: reason.into(),
+    }
+}
+
+/// The Uzawa iteration FreeFEM runs for `scene` (module docs); `alpha` is the
+/// resolved step.
+pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> UzawaPlan {
+    let s = &scene.solver;
+    let max_iter = s.max_iter.max(1) as usize;
+    let (iterations, thesis_stop) = match (iterations, s.stop) {
+        (Some(k), _) => (k, None),
+        (None, StopRule::Thesis) => (
+            max_iter,
+            Some((
+                s.thesis_tol,
+                match s.dual_norm {
+                    crate::scene::DualNorm::L2 => "l2",
+                    crate::scene::DualNorm::Inf => "inf",
+                },
+            )),
+        ),
+        (None, StopRule::Kkt) => (max_iter.min(KKT_FIXED_ITERATIONS), None),
+    };
+    UzawaPlan {
+        alpha,
+        step_form: s.step_form.unwrap_or(StepForm::Mean),
+        iterations,
+        thesis_stop,
+    }
+}
+
+/// The scene's α; "auto" is the Rust run's choice, 2/(s_max + s_min) capped
+/// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled problem.
+pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
+    match scene.solver.alpha {
+        Some(Alpha::Value(a)) => Ok(a),
+        None => Err(scene_error(
+            scene,
+            "solver.alpha",
+            "FreeFEM runs Uzawa, which needs a step α (a number or \"auto\")",
+        )),
+        Some(Alpha::Keyword(_)) => {
+            let system = crate::pipeline::setup_model(scene, mesh)?;
+            let problem = system.assemble(scene)?;
+            let f = factorize_checked(&problem.matrix, problem.kind, "α = auto (Lanczos)")?;
+            let step_form = scene.solver.step_form.unwrap_or(StepForm::Mean);
+            Ok(crate::pipeline::choose_alpha(
+                Alpha::Keyword(AlphaKeyword::Auto),
+                estimate_dual_spectrum(&problem, &f, step_form, 50),
+            ))
+        }
+    }
+}
+
+/// The script's command line for `scene` (mesh file, data, Uzawa plan).
+pub fn script_args(
+    scene: &Scene,
+    msh: &Path,
+    plan: Option<&UzawaPlan>,
+    prefix: &Path,
+) -> Result<Vec<String>> {
+    let f = |x: f64| format!("{x:e}");
+    let mut a: Vec<String> = vec!["-mesh".into(), msh.display().to_string()];
+    if scene.mesh.dirichlet.is_some() {
+        return Err(scene_error(
+            scene,
+            "mesh.dirichlet",
+            "the FreeFEM script clamps the whole boundary: remove the key to compare",
+        ));
+    }
+    match scene.model {
+        Model::Membrane => {
+            let Some(obstacle) = &scene.obstacle else {
+                return Err(scene_error(
+                    scene,
+                    "obstacle",
+                    "the FreeFEM membrane script needs an obstacle",
+                ));
+            };
+            let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
+            a.extend([
+                "-element".into(),
+                scene.element.name().into(),
+                "-g".into(),
+                f(g),
+                "-height".into(),
+                f(obstacle.level()),
+                "-curvature".into(),
+                f(obstacle.curvature.unwrap_or(0.0)),
+            ]);
+        }
+        Model::Naghdi => {
+            let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
+            let Chart::HyperbolicParaboloid { r, offset } = shell.chart else {
+                return Err(scene_error(
+                    scene,
+                    "shell.chart",
+                    format!(
+                        "the FreeFEM script has the hyperbolic-paraboloid chart only, not {}",
+                        shell.chart.kind()
+                    ),
+                ));
+            };
+            if shell.clamped.is_some() {
+                return Err(scene_error(
+                    scene,
+                    "shell.clamped",
+                    "the FreeFEM script clamps the whole boundary: remove the key to compare",
+                ));
+            }
+            if scene.load.as_ref().is_some_and(|l| !l.edge.is_empty()) {
+                return Err(scene_error(
+                    scene,
+                    "load.edge",
+                    "the FreeFEM script has no edge loads",
+                ));
+            }
+            let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
+            a.extend([
+                "-R".into(),
+                f(r),
+                "-offset".into(),
+                f(offset),
+                "-E".into(),
+                f(shell.young),
+                "-nu".into(),
+                f(shell.poisson),
+                "-eps".into(),
+                f(shell.thickness),
+                "-rho".into(),
+                f(shell.rho),
+                "-f1".into(),
+                f(load[0]),
+                "-f2".into(),
+                f(load[1]),
+                "-f3".into(),
+                f(load[2]),
+            ]);
+            if let Some(o) = &scene.obstacle {
+                if o.shape != ObstacleShape::RigidPlane {
+                    return Err(scene_error(
+                        scene,
+                        "obstacle.shape",
+                        "the shell's obstacle is the rigid plane",
+                    ));
+                }
+                a.extend(["-level".into(), f(o.level())]);
+            }
+        }
+    }
+    match plan {
+        Some(p) => {
+            a.extend([
+                "-alpha".into(),
+                f(p.alpha),
+                "-stepform".into(),
+                match p.step_form {
+                    StepForm::Mean => "mean",
+                    StepForm::Integral => "integral",
+                }
+                .into(),
+                "-iterations".into(),
+                p.iterations.to_string(),
+            ]);
+            if let Some((tol, norm)) = p.thesis_stop {
+                a.extend(["-thesistol".into(), f(tol), "-dualnorm".into(), norm.into()]);
+            }
+        }
+        None => a.extend(["-iterations".into(), "0".into()]),
+    }
+    a.extend(["-out".into(), prefix.display().to_string()]);
+    Ok(a)
+}
+
+/// What a FreeFEM run reports besides its result file.
+#[derive(Debug, Clone)]
+pub struct FreefemRun {
+    pub iterations: usize,
+    pub stop_reason: String,
+    pub alpha: Option<f64>,
+    /// The FreeFem++ process, start to end.
+    pub wall_seconds: f64,
+    /// The Uzawa loop alone (the script's clock).
+    pub loop_seconds: f64,
+    pub seconds_per_iteration: f64,
+    pub result_file: PathBuf,
+}
+
+/// Runs the FreeFEM twin of `scene` and writes `out` (+ `.xdmf`, and the
+/// `.msh` beside it as `solve` does). `iterations`: exactly K Uzawa iterations.
+pub fn run_freefem_scene(
+    scene: &Scene,
+    out: &Path,
+    iterations: Option<usize>,
+) -> Result<FreefemRun> {
+    crate::pipeline::output_folder(out)?;
+    let msh = match &scene.mesh.file {
+        Some(f) => scene.resolve(f),
+        None => out.with_extension("msh"),
+    };
+    let mesh = scene_mesh(scene, &msh)?;
+    if scene.element == ElementPair::P2P1 && scene.model == Model::Naghdi {
+        return Err(scene_error(scene, "element", "the shell is p1b-p0"));
+    }
+    let plan = match &scene.obstacle {
+        Some(_) => Some(uzawa_plan(scene, resolve_alpha(scene, &mesh)?, iterations)),
+        None => None,
+    };
+    let work = tempfile::Builder::new()
+        .prefix("obstacle-freefem-")
+        .tempdir()
+        .map_err(|e| Error::output(std::env::temp_dir(), format!("cannot create a folder: {e}")))?;
+    let prefix = work.path().join("ff");
+    let script = script_for(scene.model);
+    let args = script_args(scene, &msh, plan.as_ref(), &prefix)?;
+    let wall_seconds = run_script_checked(&script, &args)?;
+
+    let file = |ext: &str| PathBuf::from(format!("{}.{ext}", prefix.display()));
+    check_mesh_order(&mesh, &file("mesh.txt"))?;
+    let info = Info::read(&file("info.txt"))?;
+    let mut data = match scene.model {
+        Model::Membrane => membrane_data(scene, &mesh, &file)?,
+        Model::Naghdi => naghdi_data(scene, &mesh, &file)?,
+    };
+    let it = info.usize("iterations")?;
+    let stop_reason = match &plan {
+        Some(_) => info.text("stop_reason")?.to_string(),
+        None => "linear".to_string(),
+    };
+    let loop_seconds = info.f64("loop_wall_seconds")?;
+    let per_iteration = if it > 0 {
+        loop_seconds / it as f64
+    } else {
+        0.0
+    };
+    let mut attrs: Vec<(String, AttrValue)> = vec![
+        ("algorithm".into(), AttrValue::Str(ALGORITHM.into())),
+        (
+            "program".into(),
+            AttrValue::Str(script.display().to_string()),
+        ),
+        ("iterations".into(), AttrValue::I64(it as i64)),
+        ("stop_reason".into(), AttrValue::Str(stop_reason.clone())),
+        ("wall_seconds".into(), AttrValue::F64(wall_seconds)),
+        (
+            "assembly_seconds".into(),
+            AttrValue::F64(info.f64("assembly_seconds")?),
+        ),
+        (
+            "factor_seconds".into(),
+            AttrValue::F64(info.f64("factor_seconds")?),
+        ),
+        ("loop_seconds".into(), AttrValue::F64(loop_seconds)),
+        (
+            "seconds_per_iteration".into(),
+            AttrValue::F64(per_iteration),
+        ),
+        (
+            "loop_cpu_seconds".into(),
+            AttrValue::F64(info.f64("loop_cpu_seconds")?),
+        ),
+        ("solver".into(), AttrValue::Str(info.text("solver")?.into())),
+    ];
+    if let Some(p) = &plan {
+        attrs.extend([
+            ("alpha".into(), AttrValue::F64(p.alpha)),
+            (
+                "step_form".into(),
+                AttrValue::Str(format!("{:?}", p.step_form).to_lowercase()),
+            ),
+            ("max_iter".into(), AttrValue::I64(p.iterations as i64)),
+            (
+                "stop".into(),
+                AttrValue::Str(
+                    if p.thesis_stop.is_some() {
+                        "thesis"
+                    } else {
+                        "fixed"
+                    }
+                    .into(),
+                ),
+            ),
+            (
+                "dual_step".into(),
+                AttrValue::F64(info.f64("last_dual_step")?),
+            ),
+            (
+                "dual_step_inf".into(),
+                AttrValue::F64(info.f64("last_dual_step_inf")?),
+            ),
+        ]);
+        if let Some((tol, norm)) = p.thesis_stop {
+            attrs.push(("thesis_tol".into(), AttrValue::F64(tol)));
+            attrs.push(("dual_norm".into(), AttrValue::Str(norm.into())));
+        }
+        attrs.extend(contact_measures(&data));
+    }
+    data.solver_attrs = attrs;
+    data.scene_text = scene.text.clone();
+    data.root_attrs.extend([
+        ("model".into(), AttrValue::Str(scene.model.name().into())),
+        (
+            "element".into(),
+            AttrValue::Str(scene.element.name().into()),
+        ),
+        ("h".into(), AttrValue::F64(mesh.h_max())),
+        ("program".into(), AttrValue::Str("FreeFEM".into())),
+    ]);
+    write_result(out, &mesh, &data)?;
+    Ok(FreefemRun {
+        iterations: it,
+        stop_reason,
+        alpha: plan.map(|p| p.alpha),
+        wall_seconds,
+        loop_seconds,
+        seconds_per_iteration: per_iteration,
+        result_file: out.to_path_buf(),
+    })
+}
+
+/// Penetration, dual_min, complementarity and active count (SPEC §4) from
+/// the stored λ and ḡ; stationarity and tangency need the matrices and are
+/// not recorded.
+fn contact_measures(data: &ResultData) -> Vec<(String, AttrValue)> {
+    let get = |n: &str| {
+        data.fields
+            .iter()
+            .find(|f| f.name == n)
+            .map(|f| &f.values[..])
+    };
+    let (Some(l), Some(g)) = (get("lambda"), get("gap_mean")) else {
+        return vec![];
+    };
+    let pen = g.iter().fold(0.0f64, |m, x| m.max(-x));
+    let dmin = l.iter().fold(f64::INFINITY, |m, x| m.min(*x));
+    let comp = l
+        .iter()
+        .zip(g)
+        .fold(0.0f64, |m, (a, b)| m.max((a * b).abs()));
+    let active = l.iter().filter(|&&x| x > 0.0).count();
+    vec![
+        ("penetration".into(), AttrValue::F64(pen)),
+        ("dual_min".into(), AttrValue::F64(dmin)),
+        ("complementarity".into(), AttrValue::F64(comp)),
+        ("active".into(), AttrValue::I64(active as i64)),
+    ]
+}
+
+fn read_len(path: &Path, n: usize) -> Result<Vec<f64>> {
+    let v = read_numbers(path)?;
+    if v.len() != n {
+        return Err(Error::output(
+            path,
+            format!("{} values, expected {n}", v.len()),
+        ));
+    }
+    Ok(v)
+}
+
+/// The membrane's fields and dofs, named as `models::membrane` names them.
+fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Result<ResultData> {
+    let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
+    let (nu, nl, location) = match scene.element {
+        ElementPair::P1bP0 => (nv + nt, nt, Location::Cell),
+        ElementPair::P2P1 => (nv + mesh.n_edges(), nv, Location::Vertex),
+    };
+    let u = read_len(&file("u.txt"), nu)?;
+    let mut data = ResultData {
+        write_edges: scene.element == ElementPair::P2P1,
+        ..Default::default()
+    };
+    data.fields.push(vertex_field("u", u[..nv].to_vec()));
+    data.dofs.push(("u".into(), u));
+    data.fields
+        .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
+    contact_fields(
+        &mut data,
+        read_len(&file("lambda.txt"), nl)?,
+        read_len(&file("gap.txt"), nl)?,
+        location,
+    );
+    Ok(data)
+}
+
+/// The shell's fields and dofs, named as `models::naghdi::system` names them.
+fn naghdi_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Result<ResultData> {
+    let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
+    let ns = nv + nt;
+    let full = read_len(&file("u.txt"), 6 * ns)?;
+    let psi = read_len(&file("psi.txt"), ns)?;
+    let block = |c: usize| &full[c * ns..(c + 1) * ns];
+    let mut data = ResultData::default();
+    for (name, first) in [("u", 0), ("r", 3)] {
+        let values = (0..nv)
+            .flat_map(|v| (first..first + 3).map(move |c| (c, v)))
+            .map(|(c, v)| block(c)[v])
+            .collect();
+        data.fields.push(Field {
+            name: name.into(),
+            values,
+            components: 3,
+            location: Location::Vertex,
+        });
+        data.dofs
+            .push((name.into(), full[first * ns..(first + 3) * ns].to_vec()));
+    }
+    data.fields.push(vertex_field("psi", psi[..nv].to_vec()));
+    data.dofs.push(("psi".into(), psi));
+    let half_eps = 0.5 * scene.shell.as_ref().map_or(0.0, |s| s.thickness);
+    let constraint: Vec<f64> = (0..nv)
+        .map(|v| block(2)[v] - half_eps * block(5)[v])
+        .collect();
+    if scene.obstacle.is_some() {
+        data.fields
+            .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
+        data.fields.push(vertex_field("constraint", constraint));
+        let lambda = read_len(&file("lambda.txt"), nt)?;
+        let gap = read_len(&file("gap.txt"), nt)?;
+        contact_fields(&mut data, lambda, gap, Location::Cell);
+    } else {
+        data.fields.push(vertex_field("constraint", constraint));
+    }
+    Ok(data)
+}
+
+/// `obstacle freefem`: runs the twin and prints one line.
+pub fn command(scene: &Scene, out: Option<PathBuf>, iterations: Option<usize>) -> Result<()> {
+    let out = out.unwrap_or_else(|| PathBuf::from(format!("build/freefem/{}.h5", scene.name)));
+    if iterations.is_none() && scene.obstacle.is_some() && scene.solver.stop == StopRule::Kkt {
+        eprintln!(
+            "note: {} stops on the KKT measures, which the FreeFEM script does not compute: \
+             running exactly min(max_iter, {KKT_FIXED_ITERATIONS}) Uzawa iterations (--iterations K to choose)",
+            scene.name
+        );
+    }
+    let r = run_freefem_scene(scene, &out, iterations)?;
+    println!(
+        "{}: FreeFEM {ALGORITHM}, α = {}, {} iterations (stop: {}), process {:.3} s, loop {:.3} s ({:.3e} s/iteration) → {}",
+        scene.name,
+        r.alpha.map_or("-".into(), |a| format!("{a}")),
+        r.iterations,
+        r.stop_reason,
+        r.wall_seconds,
+        r.loop_seconds,
+        r.seconds_per_iteration,
+        out.display()
+    );
+    Ok(())
+}

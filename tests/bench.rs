@@ -1,0 +1,47 @@
+//! Smoke test of `obstacle bench run` on tiny meshes (a few seconds): every
+//! case runs in its own child process, the table, CSV and plots are written,
+//! and the floor and both tolerances are there. No timing is asserted.
+
+use obstacle_fem::bench::extrapolate_iterations;
+use std::process::Command;
+
+#[test]
+fn bench_runs_on_tiny_meshes() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_obstacle"))
+        .args(["bench", "run", "pipelines/bench/tiny.toml", "--out-dir"])
+        .arg(dir.path())
+        .env("CI", "1")
+        .output()
+        .expect("the obstacle binary runs");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.contains("linear solve (floor)"), "{out}");
+    assert!(out.contains("### Targets"), "{out}");
+    let csv = std::fs::read_to_string(dir.path().join("tiny.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().skip(1).collect();
+    // 2 levels × 2 methods × 2 tolerances, all converged, with a peak memory.
+    assert_eq!(lines.len(), 8, "{csv}");
+    for l in &lines {
+        let cells: Vec<&str> = l.split(',').collect();
+        assert_eq!(cells[5], "converged", "{l}");
+        let mb: f64 = cells[10].parse().unwrap();
+        assert!(mb > 0.0, "{l}");
+    }
+    for tol in ["1e-6", "1e-10"] {
+        assert!(dir.path().join(format!("tiny-disk-{tol}.png")).is_file());
+    }
+}
+
+#[test]
+fn extrapolation_of_a_linear_rate() {
+    // kkt_k = 0.5^k: 1e-6 is reached at k = log2(1e6) ≈ 19.93.
+    let kkt: Vec<f64> = (1..=10).map(|k| 0.5f64.powi(k)).collect();
+    let k = extrapolate_iterations(&kkt, 1e-6).unwrap();
+    assert!((k - 1e6f64.log2()).abs() < 1e-9, "{k}");
+    assert!(extrapolate_iterations(&[1.0, 1.0, 1.0, 1.0], 1e-6).is_none());
+}
