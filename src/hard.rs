@@ -261,7 +261,8 @@ pub fn table(rows: &[HardRow]) -> String {
                     e(m.complementarity),
                     e(m.stationarity),
                     sm.attr("u3_min").map_or("–".into(), |v| format!("{v:.4e}")),
-                    sm.attr("contact_area").map_or("–".into(), |v| format!("{v:.1}")),
+                    sm.attr("contact_area")
+                        .map_or("–".into(), |v| format!("{:.1}", v + 0.0)),
                     sm.n_dofs,
                     r.seconds
                 );

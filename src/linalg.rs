@@ -255,6 +255,26 @@ fn pattern_of(a: &SparseColMat<usize, f64>) -> (Vec<usize>, Vec<usize>) {
 }
 
 impl Factorization {
+    /// Solves A X = B in place for the k columns of B (column-major).
+    pub fn solve_block_in_place(&self, b: &mut [f64], k: usize) {
+        let n = b.len() / k.max(1);
+        let rhs = MatMut::from_column_major_slice_mut(b, n, k);
+        match self {
+            Factorization::Cholesky(f) => f.solve_in_place(rhs),
+            Factorization::Lu(f) => f.solve_in_place(rhs),
+        }
+    }
+
+    /// Solves Aᵀ X = B in place for the k columns of B (column-major).
+    pub fn solve_transpose_block_in_place(&self, b: &mut [f64], k: usize) {
+        let n = b.len() / k.max(1);
+        let rhs = MatMut::from_column_major_slice_mut(b, n, k);
+        match self {
+            Factorization::Cholesky(f) => f.solve_transpose_in_place(rhs),
+            Factorization::Lu(f) => f.solve_transpose_in_place(rhs),
+        }
+    }
+
     /// Solves Aᵀ x = b in place.
     pub fn solve_transpose_in_place(&self, b: &mut [f64]) {
         let n = b.len();

@@ -310,6 +310,8 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     let mut rhs = vec![0.0; n + m];
     let mut update: Option<RowUpdate> = None;
     let (mut factor_time, mut solve_time) = (0.0f64, 0.0f64);
+    // Time per column of a block solve (measured; a guess until then).
+    let mut column_time = 0.0f64;
     let (mut lu_steps, mut update_steps, mut update_fallbacks) = (0usize, 0usize, 0usize);
     let (mut update_solves, mut max_update_rank) = (0usize, 0usize);
     let mut update_seconds = 0.0f64;
@@ -329,20 +331,17 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         if let Some(upd) = update.as_mut() {
             let diff = upd.differing(&active);
             let new = diff.iter().filter(|&&i| upd.slot[i] == usize::MAX).count();
-            let estimate = (2 * new + 4) as f64 * solve_time;
+            let estimate = 2.0 * new as f64 * column_time + 4.0 * solve_time;
             if diff.len() <= MAX_UPDATE_RANK
                 && upd.indices.len() + new <= 2 * MAX_UPDATE_RANK
                 && estimate < factor_time
             {
                 let t = Instant::now();
-                let solves_before = upd.solves;
                 let target = (10.0 * upd.ref_residual).max(1e-12);
                 solved = upd.solve(&newton, n, &diff, &rhs, target);
-                let elapsed = t.elapsed().as_secs_f64();
-                update_seconds += elapsed;
-                let solves = upd.solves - solves_before;
-                if solves > 0 {
-                    solve_time = elapsed / solves as f64;
+                update_seconds += t.elapsed().as_secs_f64();
+                if upd.block_columns > 0 {
+                    column_time = upd.block_seconds / upd.block_columns as f64;
                 }
                 if solved.is_some() {
                     update_steps += 1;
@@ -359,7 +358,8 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
                     update_solves += upd.solves;
                 }
                 let t = Instant::now();
-                let (factorization, _) = lu.factorize(&newton.matrix, "active-set Newton matrix")?;
+                let (factorization, _) =
+                    lu.factorize(&newton.matrix, "active-set Newton matrix")?;
                 factor_time = t.elapsed().as_secs_f64();
                 factor_seconds += factor_time;
                 let mut z = rhs.clone();
@@ -371,6 +371,9 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
                     options.refinement_steps,
                 );
                 solve_time = t.elapsed().as_secs_f64() / (1 + options.refinement_steps) as f64;
+                if column_time == 0.0 {
+                    column_time = solve_time / 4.0;
+                }
                 lu_steps += 1;
                 if n + m >= options.update_min_size {
                     update = Some(RowUpdate::new(factorization, active.clone(), res));
@@ -541,6 +544,8 @@ const MAX_UPDATE_RANK: usize = 2000;
 /// Refinement sweeps of an update-path solve before it falls back to a
 /// refactorisation.
 const MAX_UPDATE_SWEEPS: usize = 4;
+/// Right-hand sides per block solve when the cache grows.
+const UPDATE_BLOCK: usize = 32;
 
 /// The Newton matrix M of the current active set as a row update of the
 /// last factorised one, M_ref (active set 𝒜_ref): the constraint rows
@@ -570,14 +575,13 @@ struct RowUpdate {
     g: Vec<Vec<f64>>,
     /// Solves with M_ref or its transpose done for this reference.
     solves: usize,
+    /// Columns of block solves and their time.
+    block_columns: usize,
+    block_seconds: f64,
 }
 
 impl RowUpdate {
-    fn new(
-        reference: Factorization,
-        ref_active: Vec<bool>,
-        ref_residual: f64,
-    ) -> RowUpdate {
+    fn new(reference: Factorization, ref_active: Vec<bool>, ref_residual: f64) -> RowUpdate {
         let m = ref_active.len();
         RowUpdate {
             reference,
@@ -587,6 +591,8 @@ impl RowUpdate {
             indices: Vec::new(),
             g: Vec::new(),
             solves: 0,
+            block_columns: 0,
+            block_seconds: 0.0,
         }
     }
 
@@ -597,32 +603,45 @@ impl RowUpdate {
         sigma * (s - newton.d * w[n + i])
     }
 
-    /// Adds index j to the cache (two solves).
-    fn add(&mut self, newton: &NewtonMatrix, n: usize, j: usize) {
+    /// Adds the indices `new` to the cache: per index one solve (column
+    /// M_ref⁻¹ e_{n+j}) and one transposed solve (row D_j M_ref⁻¹), done in
+    /// blocks of right-hand sides.
+    fn add(&mut self, newton: &NewtonMatrix, n: usize, new: &[usize]) {
         let size = n + newton.diagonal.len();
-        let new_slot = self.indices.len();
-        self.slot[j] = new_slot;
-        self.indices.push(j);
-        // Column: M_ref⁻¹ e_{n+j}.
-        let mut w = vec![0.0; size];
-        w[n + j] = 1.0;
-        self.reference.solve_in_place(&mut w);
-        // Row: M_ref⁻ᵀ D_jᵀ.
-        let mut v = vec![0.0; size];
-        let sigma = if self.ref_active[j] { -1.0 } else { 1.0 };
-        for &(col, val) in &newton.row_cols[j] {
-            v[col] += sigma * val;
+        for block in new.chunks(UPDATE_BLOCK) {
+            let k = block.len();
+            let mut w = vec![0.0; size * k];
+            let mut v = vec![0.0; size * k];
+            for (c, &j) in block.iter().enumerate() {
+                w[c * size + n + j] = 1.0;
+                let sigma = if self.ref_active[j] { -1.0 } else { 1.0 };
+                let col = &mut v[c * size..(c + 1) * size];
+                for &(jj, val) in &newton.row_cols[j] {
+                    col[jj] += sigma * val;
+                }
+                col[n + j] -= sigma * newton.d;
+            }
+            let t = Instant::now();
+            self.reference.solve_block_in_place(&mut w, k);
+            self.reference.solve_transpose_block_in_place(&mut v, k);
+            self.block_seconds += t.elapsed().as_secs_f64();
+            self.block_columns += 2 * k;
+            self.solves += 2 * k;
+            for (c, &j) in block.iter().enumerate() {
+                let wc = &w[c * size..(c + 1) * size];
+                let vc = &v[c * size..(c + 1) * size];
+                let new_slot = self.indices.len();
+                self.slot[j] = new_slot;
+                self.indices.push(j);
+                let mut row: Vec<f64> = self.indices.iter().map(|&i| vc[n + i]).collect();
+                row[new_slot] = self.d_dot(newton, n, j, wc);
+                for a in 0..new_slot {
+                    let value = self.d_dot(newton, n, self.indices[a], wc);
+                    self.g[a].push(value);
+                }
+                self.g.push(row);
+            }
         }
-        v[n + j] -= sigma * newton.d;
-        self.reference.solve_transpose_in_place(&mut v);
-        self.solves += 2;
-        let mut row: Vec<f64> = self.indices.iter().map(|&i| v[n + i]).collect();
-        row[new_slot] = self.d_dot(newton, n, j, &w);
-        for a in 0..new_slot {
-            let value = self.d_dot(newton, n, self.indices[a], &w);
-            self.g[a].push(value);
-        }
-        self.g.push(row);
     }
 
     /// The indices where `active` differs from the reference.
@@ -644,11 +663,12 @@ impl RowUpdate {
         b: &[f64],
         target: f64,
     ) -> Option<(Vec<f64>, f64)> {
-        for &i in diff {
-            if self.slot[i] == usize::MAX {
-                self.add(newton, n, i);
-            }
-        }
+        let new: Vec<usize> = diff
+            .iter()
+            .copied()
+            .filter(|&i| self.slot[i] == usize::MAX)
+            .collect();
+        self.add(newton, n, &new);
         let r = diff.len();
         let slots: Vec<usize> = diff.iter().map(|&i| self.slot[i]).collect();
         let mut cap = vec![0.0; r * r];
