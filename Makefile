@@ -147,7 +147,7 @@ bench: build
 	$(BENCH_BIN) bench run pipelines/bench/bench.toml --out-dir $(BUILD)/bench
 
 scale: build
-	$(BENCH_BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale
+	ulimit -v 20000000; $(BENCH_BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale
 
 study: build
 	$(BENCH_BIN) bench study --out-dir $(BUILD)/study \

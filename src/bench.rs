@@ -215,7 +215,12 @@ impl BenchConfig {
             .map_err(|e: toml::de::Error| err("(syntax)", e.to_string().replace('\n', " ")))?;
         let cfg: BenchConfig = serde_path_to_error::deserialize(toml::Value::Table(table))
             .map_err(|e| err(&e.path().to_string(), e.into_inner().to_string()))?;
-        if cfg.tolerances.is_empty() || cfg.tolerances.iter().any(|t| t.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)) {
+        if cfg.tolerances.is_empty()
+            || cfg
+                .tolerances
+                .iter()
+                .any(|t| t.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater))
+        {
             return Err(err("tolerances", "at least one, all > 0".into()));
         }
         if cfg.cap_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
@@ -269,7 +274,10 @@ fn run_case(
     let mut f: Vec<(String, String)> = Vec::new();
     if linear {
         let dir = tempfile::tempdir().map_err(|e| {
-            Error::output(std::env::temp_dir(), format!("cannot create a temporary folder: {e}"))
+            Error::output(
+                std::env::temp_dir(),
+                format!("cannot create a temporary folder: {e}"),
+            )
         })?;
         let mesh = scene_mesh(&scene, &dir.path().join("mesh.msh"))?;
         let system = setup_model(&scene, &mesh)?;
@@ -311,7 +319,9 @@ fn run_case(
                 format!("first_{tol:e}"),
                 first.map_or("-".into(), |k| k.to_string()),
             ));
-            if first.is_none() {
+            // An estimate only from a long enough history (short ones are
+            // still in their fast initial phase).
+            if first.is_none() && kkt.len() >= MIN_ITERATIONS_FOR_ESTIMATE {
                 if let Some(k) = extrapolate_iterations(kkt, tol) {
                     f.push((format!("estimate_{tol:e}"), format!("{k:e}")));
                 }
@@ -343,6 +353,9 @@ fn solver_attr(file: &ResultFile, name: &str) -> Option<f64> {
             _ => None,
         })
 }
+
+/// Capped runs shorter than this give no estimate of the time to the tolerance.
+pub const MIN_ITERATIONS_FOR_ESTIMATE: usize = 1000;
 
 /// Iterations to reach `tol` when the KKT history keeps the linear rate of
 /// its second half: K + ln(tol/kkt_K)/ln ρ, ρ = (kkt_K/kkt_{K/2})^{1/(K−K/2)}.
@@ -414,7 +427,11 @@ fn child(
 ) -> std::result::Result<Fields, String> {
     let exe = std::env::current_exe().map_err(|e| format!("current_exe: {e}"))?;
     let mut cmd = Command::new(exe);
-    cmd.arg("bench").arg("case").arg(scene).arg("--out").arg(out);
+    cmd.arg("bench")
+        .arg("case")
+        .arg(scene)
+        .arg("--out")
+        .arg(out);
     for s in set {
         cmd.arg("--set").arg(s);
     }
@@ -633,11 +650,8 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                         .get(&format!("first_{tol:e}"))
                         .and_then(|v| v.parse::<usize>().ok());
                     let row = if tol == tightest || (first == Some(iterations) && converged) {
-                        let mut r = measured(
-                            &fields,
-                            tol,
-                            if converged { "converged" } else { "capped" },
-                        );
+                        let mut r =
+                            measured(&fields, tol, if converged { "converged" } else { "capped" });
                         if !converged {
                             r.estimate_seconds = fields
                                 .get(&format!("estimate_{tol:e}"))
@@ -689,7 +703,10 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
     let md = bench_markdown(cfg, &rows, &floors);
     print!("{md}");
     write(&out_dir.join(format!("{}.md", cfg.name)), &md)?;
-    write(&out_dir.join(format!("{}.csv", cfg.name)), &bench_csv(&rows))?;
+    write(
+        &out_dir.join(format!("{}.csv", cfg.name)),
+        &bench_csv(&rows),
+    )?;
     for f in bench_plots(cfg, &rows, &floors, out_dir)? {
         println!("plot: {}", f.display());
     }
@@ -807,11 +824,7 @@ pub fn bench_markdown(
 /// The targets, checked on the rows.
 pub fn targets(cfg: &BenchConfig, rows: &[BenchRow]) -> String {
     let mut md = String::from("\n### Targets\n\n");
-    let tightest = cfg
-        .tolerances
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min);
+    let tightest = cfg.tolerances.iter().copied().fold(f64::INFINITY, f64::min);
     let as_rows: Vec<&BenchRow> = rows
         .iter()
         .filter(|r| r.method == "active-set" && r.tol == tightest)
@@ -828,7 +841,7 @@ pub fn targets(cfg: &BenchConfig, rows: &[BenchRow]) -> String {
             all &= ok;
             let _ = writeln!(
                 md,
-                "   - {} {}: {}{:.1}× ({} iterations, {} s vs floor {} s, {:.0}% of it in factorisations) — {}",
+                "   - {} {}: {}{:.1}× ({} iterations, {} s vs floor {} s, {} of it in factorisations) — {}",
                 r.problem,
                 r.level,
                 if r.status == "converged" { "" } else { ">" },
@@ -836,7 +849,11 @@ pub fn targets(cfg: &BenchConfig, rows: &[BenchRow]) -> String {
                 r.iterations.map_or("?".into(), |k| k.to_string()),
                 secs(r.seconds),
                 secs(r.floor_seconds),
-                100.0 * r.factor_seconds / r.seconds,
+                if r.factor_seconds.is_finite() {
+                    format!("{:.0}%", 100.0 * r.factor_seconds / r.seconds)
+                } else {
+                    "–".into()
+                },
                 if ok { "met" } else { "NOT met" }
             );
         }
@@ -895,7 +912,8 @@ pub fn bench_csv(rows: &[BenchRow]) -> String {
             r.kkt,
             r.floor_seconds,
             r.seconds / r.floor_seconds,
-            r.estimate_seconds.map_or(String::new(), |e| format!("{e:e}")),
+            r.estimate_seconds
+                .map_or(String::new(), |e| format!("{e:e}")),
             r.note.replace(',', ";")
         );
     }
@@ -989,7 +1007,10 @@ fn run_seconds(row: &StudyRow) -> Result<f64> {
 
 fn study_scene_value(study: &Study, study_path: &Path, key: &str) -> Option<String> {
     let scene = Scene::load(
-        &study_path.parent().unwrap_or(Path::new(".")).join(&study.scene),
+        &study_path
+            .parent()
+            .unwrap_or(Path::new("."))
+            .join(&study.scene),
         &study.set,
     )
     .ok()?;
@@ -1000,11 +1021,7 @@ fn study_scene_value(study: &Study, study_path: &Path, key: &str) -> Option<Stri
     }
 }
 
-fn study_points(
-    path: &Path,
-    out_dir: &Path,
-    errors: &mut ErrorsOf,
-) -> Result<Vec<WpPoint>> {
+fn study_points(path: &Path, out_dir: &Path, errors: &mut ErrorsOf) -> Result<Vec<WpPoint>> {
     let study = Study::load(path)?;
     eprintln!("study {} ({} runs)", study.name, study.runs().len());
     let rows = run_study(path, out_dir, false)?;
@@ -1069,40 +1086,56 @@ pub fn work_precision(
     }
     if let Some(r) = reference {
         let rows = run_study(r, &runs, false)?;
-        let rrow = rows
-            .iter()
-            .find(|r| r.failure.is_none())
-            .ok_or_else(|| Error::output(r, "the reference run failed"))?;
-        let ref_path = rrow.summary.result_file.clone();
-        let ref_file = read_result(&ref_path)?;
-        let _ = writeln!(
-            md,
-            "\nShell reference: {} ({} dofs, h = {:.3}, {} iterations, KKT {:.1e}, {:.1} s).",
-            ref_path.display(),
-            rrow.summary.n_dofs,
-            rrow.summary.h,
-            rrow.summary.iterations,
-            rrow.summary.measures.kkt,
-            run_seconds(rrow)?
-        );
-        let mut shell = Vec::new();
-        for p in against {
-            shell.extend(study_points(p, &runs, &mut |row: &StudyRow| {
-                let f = read_result(&row.summary.result_file)?;
-                let e = relative_errors(
-                    (&f, &row.summary.result_file),
-                    (&ref_file, &ref_path),
-                    fields,
-                )?;
-                Ok(group_components(&e))
-            })?);
-        }
-        if !shell.is_empty() {
-            parts.push(("shell (relative L² errors against the reference)".into(), shell));
+        match rows.iter().find(|r| r.failure.is_none()) {
+            None => {
+                let why: Vec<String> = rows.iter().filter_map(|r| r.failure.clone()).collect();
+                eprintln!("the reference run failed: {}", why.join("; "));
+                let _ = writeln!(
+                    md,
+                    "\nThe shell reference run failed ({}): no shell errors.",
+                    why.join("; ")
+                );
+            }
+            Some(rrow) => {
+                let ref_path = rrow.summary.result_file.clone();
+                let ref_file = read_result(&ref_path)?;
+                let _ = writeln!(
+                    md,
+                    "\nShell reference: {} ({} dofs, h = {:.3}, {} iterations, KKT {:.1e}, {:.1} s).",
+                    ref_path.display(),
+                    rrow.summary.n_dofs,
+                    rrow.summary.h,
+                    rrow.summary.iterations,
+                    rrow.summary.measures.kkt,
+                    run_seconds(rrow)?
+                );
+                let mut shell = Vec::new();
+                for p in against {
+                    shell.extend(study_points(p, &runs, &mut |row: &StudyRow| {
+                        let f = read_result(&row.summary.result_file)?;
+                        let e = relative_errors(
+                            (&f, &row.summary.result_file),
+                            (&ref_file, &ref_path),
+                            fields,
+                        )?;
+                        Ok(group_components(&e))
+                    })?);
+                }
+                if !shell.is_empty() {
+                    parts.push((
+                        "shell (relative L² errors against the reference)".into(),
+                        shell,
+                    ));
+                }
+            }
         }
     }
     for (k, (title, pts)) in parts.iter().enumerate() {
-        let tag = if k == 0 && !exact.is_empty() { "disk" } else { "shell" };
+        let tag = if k == 0 && !exact.is_empty() {
+            "disk"
+        } else {
+            "shell"
+        };
         let _ = writeln!(md, "\n## {title}\n");
         let measures: Vec<String> = pts
             .first()

@@ -23,7 +23,9 @@ use crate::models::naghdi::geometry::Chart;
 use crate::models::{contact_fields, vertex_field};
 use crate::output::{write_result, AttrValue, Field, Location, ResultData};
 use crate::pipeline::scene_mesh;
-use crate::scene::{Alpha, AlphaKeyword, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule};
+use crate::scene::{
+    Alpha, AlphaKeyword, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
+};
 use crate::solvers::spectrum::estimate_dual_spectrum;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

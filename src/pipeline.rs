@@ -13,9 +13,9 @@ use crate::plot;
 use crate::scene::{Alpha, Method, Model, PlotKind, Scene, StepForm};
 use crate::solvers::active_set::{active_set, ActiveSetOptions};
 use crate::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
-use crate::solvers::uzawa_split::{uzawa_split, UzawaSplitOptions};
 use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
+use crate::solvers::uzawa_split::{uzawa_split, UzawaSplitOptions};
 use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -196,8 +196,12 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     }
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
-    let dir = tempfile::tempdir()
-        .map_err(|e| Error::output(std::env::temp_dir(), format!("cannot create a temporary folder: {e}")))?;
+    let dir = tempfile::tempdir().map_err(|e| {
+        Error::output(
+            std::env::temp_dir(),
+            format!("cannot create a temporary folder: {e}"),
+        )
+    })?;
     let coarse_mesh = scene_mesh(&coarse, &dir.path().join("coarse.msh"))?;
     let system = setup_model(&coarse, &coarse_mesh)?;
     let problem = system.assemble(&coarse)?;
@@ -212,7 +216,10 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
         .iter()
         .map(|tri| {
             let c = tri.iter().fold([0.0, 0.0], |c, &v| {
-                [c[0] + mesh.vertices[v][0] / 3.0, c[1] + mesh.vertices[v][1] / 3.0]
+                [
+                    c[0] + mesh.vertices[v][0] / 3.0,
+                    c[1] + mesh.vertices[v][1] / 3.0,
+                ]
             });
             locator.locate(c).map_or(0.0, |(t, _)| report.lambda[t])
         })
@@ -276,7 +283,11 @@ fn solve(
     let factorization = factorize_checked(&problem.matrix, problem.kind, what)?;
     let factor_seconds = t.elapsed().as_secs_f64();
     if problem.constraint.is_none() {
-        return Ok((solve_linear(problem, &factorization, factor_seconds)?, None, None));
+        return Ok((
+            solve_linear(problem, &factorization, factor_seconds)?,
+            None,
+            None,
+        ));
     }
     let step_form = solver.step_form.unwrap_or(StepForm::Mean);
     let spectrum = estimate_dual_spectrum(problem, &factorization, step_form, 50);

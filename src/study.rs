@@ -172,8 +172,7 @@ pub fn rates(rows: &[StudyRow], error: impl Fn(&RunSummary) -> Option<f64>) -> V
     let mut out = vec![None; rows.len()];
     for i in 1..rows.len() {
         let (a, b) = (&rows[i - 1], &rows[i]);
-        let same_group =
-            a.labels.len() == b.labels.len() && outer_labels(a) == outer_labels(b);
+        let same_group = a.labels.len() == b.labels.len() && outer_labels(a) == outer_labels(b);
         if !same_group {
             continue;
         }

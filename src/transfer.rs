@@ -92,6 +92,20 @@ pub fn relative_l2_error(
     }
 }
 
+/// Prolongation for nested iteration: the coarse function `coarse_c` of
+/// `coarse` interpolated in `fine` (its nodal values at the fine nodes; for
+/// P1⊕B3 the bubble amplitude from the barycentre value). Exact for P0 and
+/// P1 on nested meshes; P1⊕B3 spaces are not nested (a coarse bubble is not
+/// in the fine space), so there it is an interpolation, exact for affine
+/// functions. Fine nodes outside the coarse mesh get 0.
+pub fn prolong(coarse: &Space, coarse_c: &[f64], locator: &PointLocator, fine: &Space) -> Vec<f64> {
+    fine.interpolate(|x| {
+        locator
+            .locate(x)
+            .map_or(0.0, |(t, l)| coarse.evaluate(coarse_c, t, l))
+    })
+}
+
 /// A result file's mesh (vertices and triangles only).
 pub fn result_mesh(file: &ResultFile, path: &Path) -> Result<Mesh> {
     Mesh::from_triangles(
@@ -210,6 +224,24 @@ mod tests {
         );
         let rate = (e4 / e8).log2();
         assert!(rate > 1.8 && rate < 2.3, "rate {rate} ({e4:e} → {e8:e})");
+        // Prolongation: exact for an affine P1⊕B3 function; for the
+        // quadratic, no worse than the coarse function itself.
+        let mloc = PointLocator::new(&mid);
+        let pa = prolong(&ms, &ms.interpolate(affine), &mloc, &fs);
+        let e = relative_l2_error(
+            &fs,
+            &pa,
+            &PointLocator::new(&fine),
+            &fs,
+            &fs.interpolate(affine),
+        );
+        assert!(e < 1e-13, "prolongation error {e}");
+        let pq = prolong(&ms, &ms.interpolate(quad), &mloc, &fs);
+        let ep = relative_l2_error(&fs, &pq, &PointLocator::new(&fine), &fs, &fine_c);
+        assert!(
+            ep <= 1.5 * e8,
+            "prolongation {ep:e} vs interpolation {e8:e}"
+        );
         // P0 and the component split by length.
         let lambda = vec![0.0; 32];
         let c = components("lambda", &lambda, 25, 32).unwrap();

@@ -28,31 +28,17 @@
 //! small), and stagnation (the best KKT measure did not improve by 1% over
 //! `stall_window` iterations).
 
+use super::check_finite;
 use super::measures::{kkt_measures, History, KktMeasures};
 use super::spectrum::estimate_dual_spectrum;
 use super::uzawa::solve_linear;
 use super::{ContactProblem, SolveReport};
 use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, first_non_finite};
+use crate::linalg::factorize_checked;
 use crate::progress::IterationProgress;
 use crate::scene::StepForm;
 use std::time::Instant;
-
-/// Column names of the accelerated dual history, in order.
-pub const HISTORY_COLUMNS: [&str; 11] = [
-    "iteration",
-    "dual_step",
-    "penetration",
-    "dual_min",
-    "complementarity",
-    "stationarity",
-    "tangency",
-    "kkt",
-    "active",
-    "momentum",
-    "restart",
-];
 
 /// When FISTA resets its momentum.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -101,6 +87,10 @@ impl Default for DualAcceleratedOptions {
 }
 
 const STAGE: &str = "dual accelerated";
+
+/// History columns after the KKT ones: active multipliers, the momentum
+/// factor β_k, and whether the momentum was restarted.
+pub const EXTRA_COLUMNS: [&str; 3] = ["active", "momentum", "restart"];
 
 /// Solves a contact problem by FISTA with restart on the dual (module docs).
 pub fn dual_accelerated(
@@ -158,11 +148,11 @@ pub fn dual_accelerated(
         None => vec![0.0; m],
     };
     let mut x = primal_solve(&lambda);
-    check_finite(0, "primal iterate", &x)?;
+    check_finite(STAGE, 0, "primal iterate", &x)?;
     let mut theta = dual_value(problem, &lambda, &x);
     let (mut y, mut xy, mut t_k) = (lambda.clone(), x.clone(), 1.0f64);
 
-    let mut history = History::with_columns(&HISTORY_COLUMNS);
+    let mut history = History::for_solver(&EXTRA_COLUMNS);
     let mut progress = IterationProgress::new(
         "FISTA",
         options.max_iter,
@@ -182,9 +172,9 @@ pub fn dual_accelerated(
         let new_lambda: Vec<f64> = (0..m)
             .map(|i| (y[i] - step * c.mean_gap(&cy, i)).max(0.0))
             .collect();
-        check_finite(k, "multiplier λ", &new_lambda)?;
+        check_finite(STAGE, k, "multiplier λ", &new_lambda)?;
         let new_x = primal_solve(&new_lambda);
-        check_finite(k, "primal iterate", &new_x)?;
+        check_finite(STAGE, k, "primal iterate", &new_x)?;
         let cx = mat_vec(&c.matrix, &new_x);
         measures = kkt_measures(problem, &new_x, &new_lambda, Some(&cx));
         let dual_step = new_lambda
@@ -223,19 +213,16 @@ pub fn dual_accelerated(
         lambda = new_lambda;
         x = new_x;
         theta = new_theta;
-        history.push(&[
-            k as f64,
+        history.push_iteration(
+            k,
             dual_step,
-            measures.penetration,
-            measures.dual_min,
-            measures.complementarity,
-            measures.stationarity,
-            measures.tangency,
-            measures.kkt,
-            measures.active as f64,
-            momentum,
-            if restart { 1.0 } else { 0.0 },
-        ]);
+            &measures,
+            &[
+                measures.active as f64,
+                momentum,
+                if restart { 1.0 } else { 0.0 },
+            ],
+        );
         progress.update(k, measures.kkt, dual_step);
         if measures.kkt <= options.tol {
             stop_reason = "kkt";
@@ -318,17 +305,6 @@ fn dual_value(problem: &ContactProblem, lambda: &[f64], x: &[f64]) -> f64 {
         .map(|(l, g)| l * g)
         .sum::<f64>()
         - 0.5 * load
-}
-
-fn check_finite(iteration: usize, what: &str, v: &[f64]) -> Result<()> {
-    match first_non_finite(v) {
-        None => Ok(()),
-        Some(i) => Err(Error::numerical(
-            STAGE,
-            what,
-            format!("non-finite value at index {i} in iteration {iteration}"),
-        )),
-    }
 }
 
 /// Detects the divergence of a fixed-step iteration from the growth of its

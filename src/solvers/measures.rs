@@ -114,7 +114,42 @@ pub struct History {
     pub columns: Vec<(String, Vec<f64>)>,
 }
 
+/// The columns every solver's history starts with ([`History::for_solver`]).
+pub const KKT_COLUMNS: [&str; 8] = [
+    "iteration",
+    "dual_step",
+    "penetration",
+    "dual_min",
+    "complementarity",
+    "stationarity",
+    "tangency",
+    "kkt",
+];
+
 impl History {
+    /// A history with the [`KKT_COLUMNS`] followed by the solver's own.
+    pub fn for_solver(extra: &[&str]) -> Self {
+        let names: Vec<&str> = KKT_COLUMNS.iter().chain(extra).copied().collect();
+        History::with_columns(&names)
+    }
+
+    /// Appends one row of a [`History::for_solver`] history: iteration k,
+    /// the dual step, the measures, then the solver's own values.
+    pub fn push_iteration(&mut self, k: usize, dual_step: f64, m: &KktMeasures, extra: &[f64]) {
+        let mut row = vec![
+            k as f64,
+            dual_step,
+            m.penetration,
+            m.dual_min,
+            m.complementarity,
+            m.stationarity,
+            m.tangency,
+            m.kkt,
+        ];
+        row.extend_from_slice(extra);
+        self.push(&row);
+    }
+
     pub fn with_columns(names: &[&str]) -> Self {
         History {
             columns: names.iter().map(|n| (n.to_string(), Vec::new())).collect(),

@@ -99,3 +99,21 @@ impl SolveReport {
             .unwrap_or(0.0)
     }
 }
+
+/// An error naming the stage, the quantity and the iteration when `v` holds
+/// a non-finite value (divergence, a singular solve).
+pub(crate) fn check_finite(
+    stage: &str,
+    iteration: usize,
+    what: &str,
+    v: &[f64],
+) -> crate::error::Result<()> {
+    match crate::linalg::first_non_finite(v) {
+        None => Ok(()),
+        Some(i) => Err(crate::error::Error::numerical(
+            stage,
+            what,
+            format!("non-finite value at index {i} in iteration {iteration}"),
+        )),
+    }
+}

@@ -10,6 +10,7 @@
 //! (penetration ḡ < 0 raises λ). The reported iterate after k iterations is
 //! (x^k, λ^k), and its KKT measures are computed honestly for that pair.
 
+use super::check_finite;
 use super::measures::{dual_step_norm, kkt_measures, History};
 use super::spectrum::estimate_dual_spectrum;
 use super::{ContactProblem, SolveReport};
@@ -41,18 +42,6 @@ pub struct Probe {
 }
 
 pub type ProbeFn = Box<dyn Fn(&[f64], &[f64]) -> f64>;
-
-/// Column names of the Uzawa history, in order (probes follow).
-pub const HISTORY_COLUMNS: [&str; 8] = [
-    "iteration",
-    "dual_step",
-    "penetration",
-    "dual_min",
-    "complementarity",
-    "stationarity",
-    "tangency",
-    "kkt",
-];
 
 /// One linear solve: the problem without contact.
 pub fn solve_linear(
@@ -97,9 +86,8 @@ pub fn uzawa(
         StepForm::Mean => vec![1.0; m],
         StepForm::Integral => c.weights.clone(),
     };
-    let mut names: Vec<&str> = HISTORY_COLUMNS.to_vec();
-    names.extend(probes.iter().map(|p| p.name.as_str()));
-    let mut history = History::with_columns(&names);
+    let probe_names: Vec<&str> = probes.iter().map(|p| p.name.as_str()).collect();
+    let mut history = History::for_solver(&probe_names);
     let mut lambda = vec![0.0; m];
     let mut x = vec![0.0; problem.n()];
     let mut measures = Default::default();
@@ -135,18 +123,8 @@ pub fn uzawa(
         let step = dual_step_norm(&new_lambda, &lambda, &c.weights, options.dual_norm);
         lambda = new_lambda;
         measures = kkt_measures(problem, &x, &lambda, Some(&cx));
-        let mut row = vec![
-            k as f64,
-            step,
-            measures.penetration,
-            measures.dual_min,
-            measures.complementarity,
-            measures.stationarity,
-            measures.tangency,
-            measures.kkt,
-        ];
-        row.extend(probes.iter().map(|p| (p.evaluate)(&x, &lambda)));
-        history.push(&row);
+        let probe_values: Vec<f64> = probes.iter().map(|p| (p.evaluate)(&x, &lambda)).collect();
+        history.push_iteration(k, step, &measures, &probe_values);
         progress.update(k, measures.kkt, step);
 
         let mut verdict = divergence.check(k, step, measures.kkt, norm_inf(&lambda));
@@ -381,16 +359,5 @@ impl DivergenceMonitor {
                 step
             )
         })
-    }
-}
-
-fn check_finite(stage: &str, iteration: usize, what: &str, v: &[f64]) -> Result<()> {
-    match v.iter().position(|x| !x.is_finite()) {
-        None => Ok(()),
-        Some(i) => Err(Error::numerical(
-            stage,
-            what,
-            format!("non-finite value at index {i} in iteration {iteration}"),
-        )),
     }
 }

@@ -51,31 +51,18 @@
 //! Stops on the relative KKT measure only; errors on non-finite values,
 //! divergence and stagnation (as [`super::dual_accelerated`]).
 
+use super::check_finite;
 use super::dual_accelerated::StepGrowth;
 use super::measures::{kkt_measures, History, KktMeasures};
 use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, SolveReport};
 use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, first_non_finite, MatrixKind};
+use crate::linalg::{factorize_checked, MatrixKind};
 use crate::progress::IterationProgress;
 use crate::scene::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
 use std::time::Instant;
-
-/// Column names of the first-splitting history, in order.
-pub const HISTORY_COLUMNS: [&str; 10] = [
-    "iteration",
-    "dual_step",
-    "penetration",
-    "dual_min",
-    "complementarity",
-    "stationarity",
-    "tangency",
-    "kkt",
-    "active",
-    "psi_step",
-];
 
 /// The Riesz map of the equality multiplier ψ in its Richardson step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -129,6 +116,9 @@ impl Default for UzawaSplitOptions {
 }
 
 const STAGE: &str = "Uzawa (first splitting)";
+
+/// History columns after the KKT ones: active multipliers and ‖ψ^k − ψ^{k−1}‖∞.
+pub const EXTRA_COLUMNS: [&str; 2] = ["active", "psi_step"];
 
 /// The block of `a` with rows in `rows` and columns in `cols`.
 fn block(
@@ -369,7 +359,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     let mut psi = vec![0.0; n_psi];
     let mut lambda = vec![0.0; m];
     let mut x = vec![0.0; n];
-    let mut history = History::with_columns(&HISTORY_COLUMNS);
+    let mut history = History::for_solver(&EXTRA_COLUMNS);
     let mut progress = IterationProgress::new(
         "Uzawa split",
         options.max_iter,
@@ -392,7 +382,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             u.iter_mut().zip(&ct).for_each(|(ui, ci)| *ui += ci);
         }
         factorization.solve_in_place(&mut u);
-        check_finite(k, "primal iterate U", &u)?;
+        check_finite(STAGE, k, "primal iterate U", &u)?;
         // ψ ← ψ + β R⁻¹ (B U − F_ψ)
         let bu = mat_vec(&b_block, &u);
         let mut psi_step = 0.0f64;
@@ -401,7 +391,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             psi[i] += d;
             psi_step = psi_step.max(d.abs());
         }
-        check_finite(k, "multiplier ψ", &psi)?;
+        check_finite(STAGE, k, "multiplier ψ", &psi)?;
         // λ ← max(0, λ − α ḡ(U))
         let mut dual_step = 0.0f64;
         if let Some(c) = &c_u {
@@ -411,23 +401,12 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
                 dual_step = dual_step.max((new - lambda[i]).abs());
                 lambda[i] = new;
             }
-            check_finite(k, "multiplier λ", &lambda)?;
+            check_finite(STAGE, k, "multiplier λ", &lambda)?;
         }
         x[..np].copy_from_slice(&u);
         x[np..].copy_from_slice(&psi);
         measures = kkt_measures(problem, &x, &lambda, None);
-        history.push(&[
-            k as f64,
-            dual_step,
-            measures.penetration,
-            measures.dual_min,
-            measures.complementarity,
-            measures.stationarity,
-            measures.tangency,
-            measures.kkt,
-            measures.active as f64,
-            psi_step,
-        ]);
+        history.push_iteration(k, dual_step, &measures, &[measures.active as f64, psi_step]);
         progress.update(k, measures.kkt, dual_step);
         if measures.kkt <= options.tol {
             stop_reason = "kkt";
@@ -513,15 +492,4 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
         wall_seconds: start.elapsed().as_secs_f64(),
         parameters,
     })
-}
-
-fn check_finite(iteration: usize, what: &str, v: &[f64]) -> Result<()> {
-    match first_non_finite(v) {
-        None => Ok(()),
-        Some(i) => Err(Error::numerical(
-            STAGE,
-            what,
-            format!("non-finite value at index {i} in iteration {iteration}"),
-        )),
-    }
 }
