@@ -188,7 +188,9 @@ fn run(cli: Cli) -> Result<()> {
             rtol,
             fields,
             row,
-        } => obstacle_fem::output::compare::command(&a, &b, rtol, fields.as_deref(), row.as_deref()),
+        } => {
+            obstacle_fem::output::compare::command(&a, &b, rtol, fields.as_deref(), row.as_deref())
+        }
         Command::Hard { dir, set, out_dir } => obstacle_fem::hard::command(&dir, &out_dir, &set),
         Command::Bench { command } => obstacle_fem::bench::run(command),
         Command::Study {

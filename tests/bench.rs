@@ -45,3 +45,19 @@ fn extrapolation_of_a_linear_rate() {
     assert!((k - 1e6f64.log2()).abs() < 1e-9, "{k}");
     assert!(extrapolate_iterations(&[1.0, 1.0, 1.0, 1.0], 1e-6).is_none());
 }
+
+#[test]
+fn every_bench_configuration_loads() {
+    for entry in std::fs::read_dir("pipelines/bench").unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) == Some("toml") {
+            let cfg = obstacle_fem::bench::BenchConfig::load(&path)
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            for p in &cfg.problem {
+                let scene = path.parent().unwrap().join(&p.scene);
+                obstacle_fem::scene::Scene::load(&scene, &p.set)
+                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            }
+        }
+    }
+}

@@ -370,6 +370,9 @@ fn nested_iteration_saves_active_set_steps() {
     assert!(warm < cold, "{warm} ≥ {cold}");
     let (la, lb) = (field(&a, "lambda"), field(&b, "lambda"));
     let scale = la.iter().fold(0.0f64, |m, v| m.max(*v));
-    let diff = la.iter().zip(lb).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    let diff = la
+        .iter()
+        .zip(lb)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
     assert!(diff < 1e-8 * scale, "{diff:e}");
 }

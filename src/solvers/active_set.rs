@@ -70,26 +70,12 @@ use crate::progress::IterationProgress;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::time::Instant;
 
-/// Column names of the active-set history, in order. Row k is the iterate
+/// History columns after the KKT ones (`History::for_solver`). Row k is the iterate
 /// of Newton step k: `active` = |𝒜_k|, the set used in step k; `changes` =
 /// `added` + `removed` = |𝒜_k Δ 𝒜_{k−1}| (𝒜_0 = ∅); `linear_residual` =
 /// ‖b − Mz‖∞/‖b‖∞ of the Newton solve after refinement; `dual_step` =
 /// ‖λ^k − λ^{k−1}‖∞.
-pub const HISTORY_COLUMNS: [&str; 13] = [
-    "iteration",
-    "dual_step",
-    "penetration",
-    "dual_min",
-    "complementarity",
-    "stationarity",
-    "tangency",
-    "kkt",
-    "active",
-    "changes",
-    "added",
-    "removed",
-    "linear_residual",
-];
+pub const EXTRA_COLUMNS: [&str; 5] = ["active", "changes", "added", "removed", "linear_residual"];
 
 #[derive(Debug, Clone)]
 pub struct ActiveSetOptions {
@@ -306,7 +292,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     let mut lu = ReusableLu::analyze(&newton.matrix, "active-set Newton matrix")?;
     let mut factor_seconds = t.elapsed().as_secs_f64();
 
-    let mut history = History::with_columns(&HISTORY_COLUMNS);
+    let mut history = History::for_solver(&EXTRA_COLUMNS);
     let mut progress = IterationProgress::new(
         "Active set",
         options.max_iter,
@@ -423,21 +409,18 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         measures = kkt_measures(problem, &x, &lambda, Some(&cx));
         let added = (0..m).filter(|&i| active[i] && !previous[i]).count();
         let removed = (0..m).filter(|&i| !active[i] && previous[i]).count();
-        history.push(&[
-            k as f64,
+        history.push_iteration(
+            k,
             dual_step,
-            measures.penetration,
-            measures.dual_min,
-            measures.complementarity,
-            measures.stationarity,
-            measures.tangency,
-            measures.kkt,
-            active.iter().filter(|&&a| a).count() as f64,
-            (added + removed) as f64,
-            added as f64,
-            removed as f64,
-            linear_residual,
-        ]);
+            &measures,
+            &[
+                active.iter().filter(|&&a| a).count() as f64,
+                (added + removed) as f64,
+                added as f64,
+                removed as f64,
+                linear_residual,
+            ],
+        );
         progress.update(k, measures.kkt, dual_step);
         if measures.kkt <= options.tol {
             stop_reason = "kkt";
