@@ -38,9 +38,9 @@ use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
 use crate::output::{read_result, AttrValue, ResultFile};
-use crate::pipeline::{run_scene, scene_mesh};
+use crate::pipeline::{run_scene, scene_mesh_in_temp};
 use crate::plot;
-use crate::scene::{Model, Scene};
+use crate::scene::{read_toml_file, Model, Scene};
 use crate::study::{run_study, Study, StudyRow};
 use crate::transfer::relative_errors;
 use clap::Subcommand;
@@ -208,13 +208,7 @@ impl BenchConfig {
             field: field.into(),
             reason,
         };
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| err("(file)", format!("cannot read: {e}")))?;
-        let table: toml::Table = text
-            .parse()
-            .map_err(|e: toml::de::Error| err("(syntax)", e.to_string().replace('\n', " ")))?;
-        let cfg: BenchConfig = serde_path_to_error::deserialize(toml::Value::Table(table))
-            .map_err(|e| err(&e.path().to_string(), e.into_inner().to_string()))?;
+        let cfg: BenchConfig = read_toml_file(path)?;
         if cfg.tolerances.is_empty()
             || cfg
                 .tolerances
@@ -273,13 +267,7 @@ fn run_case(
     let scene = Scene::load(scene_path, set)?;
     let mut f: Vec<(String, String)> = Vec::new();
     if linear {
-        let dir = tempfile::tempdir().map_err(|e| {
-            Error::output(
-                std::env::temp_dir(),
-                format!("cannot create a temporary folder: {e}"),
-            )
-        })?;
-        let mesh = scene_mesh(&scene, &dir.path().join("mesh.msh"))?;
+        let (_dir, mesh) = scene_mesh_in_temp(&scene)?;
         let system = setup_model(&scene, &mesh)?;
         let problem = system.assemble(&scene)?;
         let t = Instant::now();

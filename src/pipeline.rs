@@ -79,6 +79,19 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     Mesh::read_msh(msh_path)
 }
 
+/// The scene's mesh, meshed into a temporary folder (kept alive by the
+/// returned handle) when nothing is to be kept beside a result.
+pub fn scene_mesh_in_temp(scene: &Scene) -> Result<(tempfile::TempDir, Mesh)> {
+    let dir = tempfile::tempdir().map_err(|e| {
+        Error::output(
+            std::env::temp_dir(),
+            format!("cannot create a temporary folder: {e}"),
+        )
+    })?;
+    let mesh = scene_mesh(scene, &dir.path().join("mesh.msh"))?;
+    Ok((dir, mesh))
+}
+
 /// The dual step: the scene's number, or "auto" from a Lanczos estimate of
 /// the spectrum of S: 2/(s_max + s_min), the optimal fixed Richardson step,
 /// capped at 95% of the stability bound 2/s_max.
@@ -196,13 +209,7 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     }
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
-    let dir = tempfile::tempdir().map_err(|e| {
-        Error::output(
-            std::env::temp_dir(),
-            format!("cannot create a temporary folder: {e}"),
-        )
-    })?;
-    let coarse_mesh = scene_mesh(&coarse, &dir.path().join("coarse.msh"))?;
+    let (_dir, coarse_mesh) = scene_mesh_in_temp(&coarse)?;
     let system = setup_model(&coarse, &coarse_mesh)?;
     let problem = system.assemble(&coarse)?;
     if problem.n_multipliers() != coarse_mesh.n_triangles() {

@@ -692,6 +692,23 @@ impl Scene {
     }
 }
 
+/// Reads a TOML file into `T` (a study or benchmark description): errors
+/// name the file, the dotted field and the reason, like a scene's.
+pub fn read_toml_file<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let err = |field: &str, reason: String| Error::Scene {
+        file: path.to_path_buf(),
+        field: field.into(),
+        reason,
+    };
+    let text =
+        std::fs::read_to_string(path).map_err(|e| err("(file)", format!("cannot read: {e}")))?;
+    let table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| err("(syntax)", e.to_string().replace('\n', " ")))?;
+    serde_path_to_error::deserialize(toml::Value::Table(table))
+        .map_err(|e| err(&e.path().to_string(), e.into_inner().to_string()))
+}
+
 /// Applies `a.b.c=value` to a TOML table. The value is parsed as TOML
 /// (numbers, booleans, arrays, quoted strings); a bare word is taken as a string.
 fn apply_override(

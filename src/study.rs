@@ -20,7 +20,7 @@ use crate::models::membrane::ExactErrors;
 use crate::output::read_result;
 use crate::pipeline::{run_scene, RunSummary};
 use crate::plot;
-use crate::scene::Scene;
+use crate::scene::{read_toml_file, Scene};
 use crate::transfer::relative_errors;
 use serde::Deserialize;
 use std::fmt::Write as _;
@@ -84,13 +84,7 @@ impl Study {
             field: field.into(),
             reason,
         };
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| err("(file)", format!("cannot read: {e}")))?;
-        let table: toml::Table = text
-            .parse()
-            .map_err(|e: toml::de::Error| err("(syntax)", e.to_string().replace('\n', " ")))?;
-        let study: Study = serde_path_to_error::deserialize(toml::Value::Table(table))
-            .map_err(|e| err(&e.path().to_string(), e.into_inner().to_string()))?;
+        let study: Study = read_toml_file(path)?;
         if study.sweep.iter().any(|s| s.values.is_empty()) {
             return Err(err(
                 "sweep.values",

@@ -30,6 +30,21 @@ pub fn check_success(what: &str, out: &Output) {
     );
 }
 
+/// A script call that must fail with a message prefixed by the script's name.
+pub fn check_rejected(what: &str, out: &Output, script: &str) {
+    assert!(
+        !out.status.success(),
+        "{what}: the script should fail, but succeeded:\n{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains(&format!("{script}:")), "{what}: {text}");
+}
+
 /// Runs the `obstacle` binary; its output, whatever the exit status.
 pub fn obstacle_output(args: &[String]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_obstacle"))
