@@ -149,10 +149,7 @@ pub fn scene_condition(scene: &Scene, msh: &Path) -> Result<Conditions> {
         Model::Naghdi => Box::new(NaghdiSystem::setup(&mesh, scene)?),
     };
     let problem: ContactProblem = system.assemble(scene)?;
-    let what = match problem.kind {
-        MatrixKind::SymmetricPositiveDefinite => "stiffness matrix",
-        MatrixKind::General => "saddle-point matrix [[K_ρ, Bᵀ], [B, 0]]",
-    };
+    let what = problem.kind.describe();
     let f = factorize_checked(&problem.matrix, problem.kind, what)?;
     let kappa = condition_estimate(&problem.matrix, &f);
     let primal = (problem.n_primal < problem.n()).then(|| {

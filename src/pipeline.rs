@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
-use crate::linalg::{factorize_checked, MatrixKind};
+use crate::linalg::factorize_checked;
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
 use crate::models::naghdi::system::NaghdiSystem;
@@ -283,10 +283,7 @@ fn solve(
     }
     // One factorisation, reused by every iteration.
     let t = Instant::now();
-    let what = match problem.kind {
-        MatrixKind::SymmetricPositiveDefinite => "stiffness matrix",
-        MatrixKind::General => "saddle-point matrix [[K_ρ, Bᵀ], [B, 0]]",
-    };
+    let what = problem.kind.describe();
     let factorization = factorize_checked(&problem.matrix, problem.kind, what)?;
     let factor_seconds = t.elapsed().as_secs_f64();
     if problem.constraint.is_none() {

@@ -167,7 +167,12 @@ fn thesis_dof_count() {
     assert_eq!(numbering.n_free(), 7 * (801 - 64));
     assert_eq!(problem.n_primal, 6 * (801 - 64));
     assert_eq!(problem.matrix.nrows(), numbering.n_free());
-    assert_eq!(problem.kind, MatrixKind::General);
+    assert_eq!(
+        problem.kind,
+        MatrixKind::SymmetricSaddle {
+            n_primal: 6 * (801 - 64)
+        }
+    );
     assert!(problem.constraint.is_none());
     // The contact constraint adds one P0 multiplier per triangle.
     let c = rigid_plane_constraint(

@@ -337,19 +337,20 @@ pub fn assemble_shell(
 ) -> (ContactProblem, DofNumbering) {
     let numbering = clamped_numbering(mesh, clamped_tags);
     let (a_full, f_full) = assemble_shell_full(mesh, chart, material, rho, load);
-    let problem = restrict_shell(mesh, &a_full, &f_full, &numbering, MatrixKind::General);
+    let problem = restrict_shell(mesh, &a_full, &f_full, &numbering);
     (problem, numbering)
 }
 
 /// The shell problem over the free dofs of `numbering` (homogeneous clamping:
 /// fixed dofs are zero, so no lifting): A restricted, F restricted,
-/// n_primal = number of free U dofs (they come first in block order).
+/// n_primal = number of free U dofs (they come first in block order). With
+/// ψ the matrix is a symmetric saddle-point matrix; without (the plate
+/// reduction eliminated it) K is symmetric positive definite.
 pub fn restrict_shell(
     mesh: &Mesh,
     a_full: &Triplets,
     f_full: &[f64],
     numbering: &DofNumbering,
-    kind: MatrixKind,
 ) -> ContactProblem {
     let layout = ShellLayout::new(mesh);
     let zeros = vec![0.0; layout.n_total()];
@@ -360,6 +361,11 @@ pub fn restrict_shell(
         .iter()
         .filter(|&&d| d < psi_start)
         .count();
+    let kind = if n_primal < numbering.free_dofs.len() {
+        MatrixKind::SymmetricSaddle { n_primal }
+    } else {
+        MatrixKind::SymmetricPositiveDefinite
+    };
     ContactProblem {
         matrix: a.to_sparse(),
         kind,

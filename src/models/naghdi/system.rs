@@ -18,7 +18,6 @@ use super::forms::{
 use super::geometry::{Chart, Material};
 use crate::assembly::{quad_points, DofNumbering};
 use crate::error::{Error, Result};
-use crate::linalg::MatrixKind;
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::{contact_fields, named_boundary_tags, vertex_field, ModelSystem};
 use crate::output::{AttrValue, Field, Location, ResultData};
@@ -165,12 +164,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                 &mut f_full,
             );
         }
-        let kind = if self.plate_reduction {
-            MatrixKind::SymmetricPositiveDefinite
-        } else {
-            MatrixKind::General
-        };
-        let mut problem = restrict_shell(self.mesh, &a_full, &f_full, &self.numbering, kind);
+        let mut problem = restrict_shell(self.mesh, &a_full, &f_full, &self.numbering);
         if problem.n_primal < problem.n() {
             // ψ present: balance its rows with K's (needed for large ρ).
             let sigma = balanced_tangency_scale(&problem);
