@@ -121,9 +121,23 @@ pub fn check_test_solve(
     f: &Factorization,
     what: &str,
 ) -> Result<f64> {
-    let n = a.nrows();
-    let b = test_rhs(n);
-    let mut x = b.clone();
+    check_solve(a, f, &test_rhs(a.nrows()), what).map(|(_, rel)| rel)
+}
+
+/// Solves A x = b with `f` and checks it as [`check_test_solve`] does
+/// (b = 0: on the test right-hand side instead, x = 0). Returns x and the
+/// relative residual.
+fn check_solve(
+    a: &SparseColMat<usize, f64>,
+    f: &Factorization,
+    b: &[f64],
+    what: &str,
+) -> Result<(Vec<f64>, f64)> {
+    if norm_inf(b) == 0.0 {
+        let rel = check_solve(a, f, &test_rhs(a.nrows()), what)?.1;
+        return Ok((vec![0.0; b.len()], rel));
+    }
+    let mut x = b.to_vec();
     f.solve_in_place(&mut x);
     if x.iter().any(|v| !v.is_finite()) {
         return Err(Error::numerical(
@@ -132,8 +146,7 @@ pub fn check_test_solve(
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let r = residual(a, &x, &b);
-    let rel = norm_inf(&r) / norm_inf(&b);
+    let rel = norm_inf(&residual(a, &x, b)) / norm_inf(b);
     if rel > 1e-6 {
         return Err(Error::numerical(
             what,
@@ -143,7 +156,7 @@ pub fn check_test_solve(
             ),
         ));
     }
-    Ok(rel)
+    Ok((x, rel))
 }
 
 /// A fixed, dense, non-trivial right-hand side for test solves.
@@ -159,25 +172,23 @@ pub fn residual(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64]) -> Vec<f64> 
     b.iter().zip(&ax).map(|(p, q)| p - q).collect()
 }
 
-/// Solves A x = b in place and then takes `steps` steps of iterative
-/// refinement x ← x + A⁻¹(b − A x) with the same factorisation. Returns
-/// ‖b − A x‖∞/‖b‖∞ of the final x (0 for b = 0).
-pub fn solve_refined(
+/// `steps` steps of iterative refinement x ← x + A⁻¹(b − A x) of a solution
+/// x of A x = b; returns ‖b − A x‖∞/‖b‖∞ of the final x (‖·‖ for b = 0).
+pub fn refine(
     a: &SparseColMat<usize, f64>,
     f: &Factorization,
-    b: &mut [f64],
+    b: &[f64],
+    x: &mut [f64],
     steps: usize,
 ) -> f64 {
-    let rhs = b.to_vec();
-    f.solve_in_place(b);
-    let mut r = residual(a, b, &rhs);
+    let mut r = residual(a, x, b);
     for _ in 0..steps {
         let mut d = r;
         f.solve_in_place(&mut d);
-        b.iter_mut().zip(&d).for_each(|(x, dx)| *x += dx);
-        r = residual(a, b, &rhs);
+        x.iter_mut().zip(&d).for_each(|(xi, dx)| *xi += dx);
+        r = residual(a, x, b);
     }
-    let scale = norm_inf(&rhs);
+    let scale = norm_inf(b);
     if scale > 0.0 {
         norm_inf(&r) / scale
     } else {
@@ -257,6 +268,19 @@ impl ReusableFactorization {
         a: &SparseColMat<usize, f64>,
         what: &str,
     ) -> Result<(Factorization, f64)> {
+        let (f, _, rel) = self.factorize_and_solve(a, &test_rhs(a.nrows()), what)?;
+        Ok((f, rel))
+    }
+
+    /// Numeric factorisation of `a` and the solve of A x = b, checked on
+    /// that solve instead of a test solve (one solve less per matrix).
+    /// Returns the factorisation, x and ‖b − A x‖∞/‖b‖∞.
+    pub fn factorize_and_solve(
+        &mut self,
+        a: &SparseColMat<usize, f64>,
+        b: &[f64],
+        what: &str,
+    ) -> Result<(Factorization, Vec<f64>, f64)> {
         let (col_ptr, row_idx) = pattern_of(a);
         if a.nrows() != self.nrows || col_ptr != self.col_ptr || row_idx != self.row_idx {
             return Err(Error::numerical(
@@ -280,9 +304,14 @@ impl ReusableFactorization {
             )),
             SymbolicAnalysis::Ldlt { symbolic, n_primal } => {
                 let ldlt = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what).ok();
-                match ldlt.and_then(|f| f.accepted(a, what)) {
-                    Some(f) => f,
-                    None => {
+                let f = ldlt.map(|l| Factorization::Ldlt(Box::new(l)));
+                let solved = f.as_ref().and_then(|f| check_solve(a, f, b, what).ok());
+                match (f, solved) {
+                    (Some(f), Some((x, rel))) if rel <= LDLT_ACCEPTED => {
+                        self.numeric_factorizations += 1;
+                        return Ok((f, x, rel));
+                    }
+                    _ => {
                         // A zero pivot, or the refined solve misses its
                         // accuracy (the signs are not the matrix's inertia,
                         // or the matrix defeats the regularisation): LU from
@@ -292,7 +321,7 @@ impl ReusableFactorization {
                                 |e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")),
                             )?);
                         self.symbolic_analyses += 1;
-                        return self.factorize(a, what);
+                        return self.factorize_and_solve(a, b, what);
                     }
                 }
             }
@@ -305,8 +334,8 @@ impl ReusableFactorization {
             ),
         };
         self.numeric_factorizations += 1;
-        let rel = check_test_solve(a, &f, what)?;
-        Ok((f, rel))
+        let (x, rel) = check_solve(a, &f, b, what)?;
+        Ok((f, x, rel))
     }
 
     /// The factorisation in use: "Cholesky", "LDLᵀ" or "LU" (after a
@@ -494,16 +523,6 @@ impl RegularizedLdlt {
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
             matrix: a.clone(),
         })
-    }
-
-    /// The factorisation if its refined test solve reaches round-off level
-    /// (≤ [`LDLT_ACCEPTED`]); None when the regularisation is too coarse for
-    /// this matrix (the caller falls back to LU).
-    fn accepted(self, a: &SparseColMat<usize, f64>, what: &str) -> Option<Factorization> {
-        let f = Factorization::Ldlt(Box::new(self));
-        check_test_solve(a, &f, what)
-            .is_ok_and(|r| r <= LDLT_ACCEPTED)
-            .then_some(f)
     }
 
     /// One solve with the (perturbed, equilibrated) factors, k columns:

@@ -10,8 +10,8 @@ use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
 use crate::output::{write_result, AttrValue, Location, ResultData};
 use crate::plot;
-use crate::scene::{Alpha, Method, Model, PlotKind, Scene, StepForm};
-use crate::solvers::active_set::{active_set, ActiveSetOptions};
+use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, StepForm};
+use crate::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
 use crate::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
 use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
@@ -255,6 +255,10 @@ fn solve(
                     max_iter,
                     show_progress,
                     initial_lambda: start_lambda,
+                    cold_start: match solver.cold_start {
+                        ColdStartSpec::DepthBisection => ColdStart::DepthBisection { probes: 6 },
+                        ColdStartSpec::Plain => ColdStart::Plain,
+                    },
                     ..Default::default()
                 },
             )?,

@@ -214,6 +214,19 @@ pub struct SolverSpec {
     /// (active-set, dual-accelerated). Needs a structured mesh (`mesh.n`).
     #[serde(default)]
     pub nested: bool,
+    /// Active set from a cold start: "depth-bisection" (probe nested sets
+    /// inside the free solution's penetration zone, then PDAS) or "plain"
+    /// PDAS (src/solvers/active_set.rs).
+    #[serde(default)]
+    pub cold_start: ColdStartSpec,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ColdStartSpec {
+    #[default]
+    DepthBisection,
+    Plain,
 }
 
 fn default_max_iter() -> i64 {
@@ -525,6 +538,12 @@ impl Scene {
             }
         }
         positive("solver.thesis_tol", s.thesis_tol)?;
+        if s.cold_start != ColdStartSpec::default() && s.method != Method::ActiveSet {
+            return Err(self.error(
+                "solver.cold_start",
+                "the cold start is an option of the active-set method",
+            ));
+        }
         Ok(())
     }
 
