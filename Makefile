@@ -141,10 +141,14 @@ freefem-timings: build
 #   make study   work–precision: error against time, report in build/study/
 BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 
-.PHONY: bench scale study
+.PHONY: bench bench-1000 scale study
 
 bench: build
 	$(BENCH_BIN) bench run pipelines/bench/bench.toml --out-dir $(BUILD)/bench
+
+# Target 2 of issue 5: Uzawa capped at 1000 × the active-set time (~1 h).
+bench-1000: build
+	$(BENCH_BIN) bench run pipelines/bench/uzawa-1000.toml --out-dir $(BUILD)/bench-1000
 
 scale: build
 	ulimit -v 20000000; $(BENCH_BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale

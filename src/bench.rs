@@ -164,6 +164,18 @@ pub struct BenchMethod {
     /// running them (default true).
     #[serde(default = "default_true")]
     pub skip_after_cap: bool,
+    /// Cap relative to another method measured before at the same level:
+    /// cap = factor × its time to `tol` (e.g. 1000 × active-set to 1e-6), so
+    /// a capped run proves "at least factor× slower" directly.
+    pub cap_relative: Option<CapRelative>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapRelative {
+    pub method: String,
+    pub factor: f64,
+    pub tol: f64,
 }
 
 fn default_true() -> bool {
@@ -524,7 +536,23 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                     kkt: f64::NAN,
                     ..Default::default()
                 };
-                let cap = m.cap_seconds.unwrap_or(cfg.cap_seconds);
+                let mut cap = m.cap_seconds.unwrap_or(cfg.cap_seconds);
+                if let Some(rel) = &m.cap_relative {
+                    let reference = rows.iter().find(|r| {
+                        r.problem == p.label
+                            && r.level == level_s
+                            && r.method == rel.method
+                            && r.tol == rel.tol
+                            && r.status == "converged"
+                    });
+                    match reference {
+                        Some(r) => cap = rel.factor * r.seconds,
+                        None => eprintln!(
+                            "  {}: no converged {} run at {:e} to scale the cap by; cap {cap} s",
+                            m.label, rel.method, rel.tol
+                        ),
+                    }
+                }
                 let excluded = p
                     .method_levels
                     .get(&m.label)
@@ -560,6 +588,9 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                 // The cap as an iteration budget (calibrated on the floor).
                 let per_iter = if m.iteration_cost == "factor" {
                     1.3 * floor_factor.max(1e-4) + floor_solve.max(1e-5)
+                } else if m.cap_relative.is_some() {
+                    // Err on the long side: the run must reach the cap.
+                    0.8 * floor_solve.max(1e-5)
                 } else {
                     1.5 * floor_solve.max(1e-5)
                 };
