@@ -9,9 +9,11 @@
 //! Measured figures are printed with eprintln (run with `--nocapture`).
 
 use faer::sparse::{SparseColMat, Triplet};
-use obstacle_fem::assembly::norm_inf;
+use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
-use obstacle_fem::linalg::{factorize_checked, MatrixKind};
+use obstacle_fem::linalg::{
+    factorize_checked, residual, Factorization, MatrixKind, ReusableFactorization,
+};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::membrane::MembraneSystem;
 use obstacle_fem::models::naghdi::forms::{
@@ -49,6 +51,22 @@ fn shell(n: usize) -> ContactProblem {
 }
 
 fn shell_with_mesh(n: usize) -> (Mesh, ContactProblem) {
+    let (mesh, mut problem, numbering) = hypar(n, 1e3);
+    let chart = Chart::HyperbolicParaboloid { r: R, offset: 1.4 };
+    problem.constraint = Some(rigid_plane_constraint(&mesh, &chart, &MATERIAL, &numbering));
+    let sigma = balanced_tangency_scale(&problem);
+    scale_tangency_multiplier(&mut problem, sigma);
+    (mesh, problem)
+}
+
+const MATERIAL: Material = Material {
+    young: 2.85e4,
+    poisson: 0.4,
+    thickness: 0.8,
+};
+
+/// The thesis hypar on the n×n diamond without contact, ψ unscaled.
+fn hypar(n: usize, rho: f64) -> (Mesh, ContactProblem, DofNumbering) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("diamond.msh");
     run_gmsh(
@@ -59,17 +77,9 @@ fn shell_with_mesh(n: usize) -> (Mesh, ContactProblem) {
     .unwrap();
     let mesh = Mesh::read_msh(&out).unwrap();
     let chart = Chart::HyperbolicParaboloid { r: R, offset: 1.4 };
-    let material = Material {
-        young: 2.85e4,
-        poisson: 0.4,
-        thickness: 0.8,
-    };
-    let (mut problem, numbering) =
-        assemble_shell(&mesh, &chart, &material, 1e3, [0.0, 0.0, -0.25], None);
-    problem.constraint = Some(rigid_plane_constraint(&mesh, &chart, &material, &numbering));
-    let sigma = balanced_tangency_scale(&problem);
-    scale_tangency_multiplier(&mut problem, sigma);
-    (mesh, problem)
+    let (problem, numbering) =
+        assemble_shell(&mesh, &chart, &MATERIAL, rho, [0.0, 0.0, -0.25], None);
+    (mesh, problem, numbering)
 }
 
 fn parameter(report: &SolveReport, name: &str) -> f64 {
@@ -529,4 +539,87 @@ fn nested_iteration_warm_start() {
         warm.iterations,
         cold.iterations
     );
+}
+
+// The signed-regularised LDLᵀ of the shell's saddle-point matrix
+// [[K_ρ, Bᵀ], [B, 0]] against faer's LU on the same matrix: the same solution
+// to round-off over the penalty range, and the fallback to LU taken when the
+// refined solve misses its accuracy.
+
+/// Solves with the chain and with LU; returns (method, max|x − x_LU|/max|x_LU|,
+/// relative residuals of the chain's and of LU's solve, symbolic analyses).
+fn against_lu(problem: &ContactProblem) -> (&'static str, f64, f64, f64, usize) {
+    let kind = problem.kind;
+    assert!(matches!(kind, MatrixKind::SymmetricSaddle { .. }));
+    let mut chain = ReusableFactorization::analyze(&problem.matrix, kind, "shell").unwrap();
+    let (f, _) = chain.factorize(&problem.matrix, "shell").unwrap();
+    let mut x = problem.rhs.clone();
+    f.solve_in_place(&mut x);
+    let lu = Factorization::new(&problem.matrix, MatrixKind::General, "shell").unwrap();
+    let mut x_lu = problem.rhs.clone();
+    lu.solve_in_place(&mut x_lu);
+    let diff: Vec<f64> = x.iter().zip(&x_lu).map(|(a, b)| a - b).collect();
+    let rel =
+        |x: &[f64]| norm_inf(&residual(&problem.matrix, x, &problem.rhs)) / norm_inf(&problem.rhs);
+    (
+        chain.method(),
+        norm_inf(&diff) / norm_inf(&x_lu),
+        rel(&x),
+        rel(&x_lu),
+        chain.symbolic_analyses(),
+    )
+}
+
+#[test]
+fn ldlt_matches_lu_on_the_shell() {
+    // The pipeline's matrices (ψ rows balanced) over the penalty range, and
+    // one without the ψ scaling (the equilibration inside the LDLᵀ copes).
+    for (rho, scaled) in [
+        (0.0, true),
+        (1.0, true),
+        (1e3, true),
+        (1e9, true),
+        (1e12, true),
+        (1e3, false),
+    ] {
+        let mut problem = hypar(16, rho).1;
+        if scaled {
+            let sigma = balanced_tangency_scale(&problem);
+            scale_tangency_multiplier(&mut problem, sigma);
+        }
+        let (method, diff, res, res_lu, analyses) = against_lu(&problem);
+        println!(
+            "ρ = {rho:e}, scaled {scaled}: {method}, |x − x_LU| {diff:.2e}, residual {res:.2e} (LU {res_lu:.2e})"
+        );
+        // At ρ = 1e12 (κ₂ ≈ 4e10) the refined LDLᵀ leaves a test residual
+        // above its 1e-8 bound and the chain takes LU.
+        let expected = if rho > 1e10 { ("LU", 2) } else { ("LDLᵀ", 1) };
+        assert_eq!((method, analyses), expected, "ρ = {rho}");
+        // Forward differences within what the conditioning allows (the
+        // unscaled matrix is the worst conditioned).
+        assert!(
+            diff < if scaled { 1e-11 } else { 1e-7 },
+            "ρ = {rho}: {diff:e}"
+        );
+        assert!(
+            res <= 10.0 * res_lu + 1e-11,
+            "ρ = {rho}: {res:e} vs LU {res_lu:e}"
+        );
+    }
+}
+
+#[test]
+fn ldlt_falls_back_to_lu_when_the_signs_are_wrong() {
+    // Declared with every unknown primal, the ψ pivots are forced positive:
+    // the factors are of a different matrix, refinement cannot recover, and
+    // the chain moves to LU, which then solves it as LU does.
+    let mut problem = hypar(16, 1e3).1;
+    problem.kind = MatrixKind::SymmetricSaddle {
+        n_primal: problem.n(),
+    };
+    let (method, diff, res, _, analyses) = against_lu(&problem);
+    assert_eq!(method, "LU");
+    assert_eq!(analyses, 2);
+    assert_eq!(diff, 0.0);
+    assert!(res < 1e-10, "{res:e}");
 }
