@@ -282,6 +282,10 @@ fn run_case(
         let (_dir, mesh) = scene_mesh_in_temp(&scene)?;
         let system = setup_model(&scene, &mesh)?;
         let problem = system.assemble(&scene)?;
+        // Peak RSS so far: meshing and assembly (coordinate triplets) alone.
+        if let Some(kb) = peak_rss_kb() {
+            f.push(("assembly_peak_rss_kb".into(), kb.to_string()));
+        }
         let t = Instant::now();
         let factorization = Factorization::new(&problem.matrix, problem.kind, "system matrix")?;
         let factor = t.elapsed().as_secs_f64();
@@ -514,9 +518,12 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                     (f64::NAN, f64::NAN, f64::NAN, 0, f64::NAN)
                 }
             };
+            let assembly_mem = floor
+                .as_ref()
+                .map_or(f64::NAN, |f| num(f, "assembly_peak_rss_kb") / 1024.0);
             eprintln!(
-                "{} {}={}: floor {:.3} s (factor {:.3}, solve {:.4}), {} dofs, {:.0} MB",
-                p.label, p.key, level_s, floor_s, floor_factor, floor_solve, n_dofs, floor_mem
+                "{} {}={}: floor {:.3} s (factor {:.3}, solve {:.4}), {} dofs, {:.0} MB ({:.0} MB after assembly)",
+                p.label, p.key, level_s, floor_s, floor_factor, floor_solve, n_dofs, floor_mem, assembly_mem
             );
             floors.push((p.label.clone(), level_s.clone(), n_dofs, floor_s, floor_mem));
             for m in &cfg.method {
