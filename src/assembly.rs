@@ -118,11 +118,15 @@ impl Triplets {
         }));
     }
 
-    pub fn to_sparse(&self) -> SparseColMat<usize, f64> {
-        let t: Vec<_> = self
+    /// The compressed matrix (duplicates summed). Consumes the entries and
+    /// reuses their allocation for faer's triplets: assembly dominates the
+    /// peak memory (measured: at n = 128 on the shell the peak RSS is reached
+    /// in assembly, not in the factorisation), so no copy is kept.
+    pub fn into_sparse(self) -> SparseColMat<usize, f64> {
+        let t: Vec<Triplet<usize, usize, f64>> = self
             .entries
-            .iter()
-            .map(|&(r, c, v)| Triplet::new(r, c, v))
+            .into_iter()
+            .map(|(r, c, v)| Triplet::new(r, c, v))
             .collect();
         SparseColMat::try_new_from_triplets(self.nrows, self.ncols, &t)
             .expect("assembly produced indices inside the matrix")
@@ -282,21 +286,35 @@ impl DofNumbering {
 /// and −A_free,fixed · fixed_values, the right-hand-side shift that lifts
 /// non-homogeneous Dirichlet data.
 pub fn eliminate(
-    a: &Triplets,
+    a: Triplets,
     rows: &DofNumbering,
     cols: &DofNumbering,
     fixed_values: &[f64],
 ) -> (Triplets, Vec<f64>) {
-    let mut reduced = Triplets::new(rows.n_free(), cols.n_free());
     let mut shift = vec![0.0; rows.n_free()];
-    for &(r, c, v) in &a.entries {
-        if let Some(ri) = rows.free_index[r] {
-            match cols.free_index[c] {
-                Some(ci) => reduced.entries.push((ri, ci, v)),
-                None => shift[ri] -= v * fixed_values[c],
+    let mut entries = a.entries;
+    // In place: the full matrix's allocation becomes the reduced one's.
+    entries.retain_mut(|e| {
+        let (r, c, v) = *e;
+        let Some(ri) = rows.free_index[r] else {
+            return false;
+        };
+        match cols.free_index[c] {
+            Some(ci) => {
+                *e = (ri, ci, v);
+                true
+            }
+            None => {
+                shift[ri] -= v * fixed_values[c];
+                false
             }
         }
-    }
+    });
+    let reduced = Triplets {
+        nrows: rows.n_free(),
+        ncols: cols.n_free(),
+        entries,
+    };
     (reduced, shift)
 }
 

@@ -133,7 +133,7 @@ fn primal_block(problem: &ContactProblem) -> faer::sparse::SparseColMat<usize, f
             }
         }
     }
-    t.to_sparse()
+    t.into_sparse()
 }
 
 /// Condition estimates of a scene's matrix and, for a saddle-point matrix,

@@ -89,7 +89,7 @@ impl ModelSystem for MembraneSystem<'_> {
         let u = &self.u_space;
         let k_full = assemble_bilinear(u, u, &rule, laplace);
         let fixed_values = vec![0.0; u.n_dofs()];
-        let (k, shift) = eliminate(&k_full, &self.numbering, &self.numbering, &fixed_values);
+        let (k, shift) = eliminate(k_full, &self.numbering, &self.numbering, &fixed_values);
         let f_full = assemble_linear(u, &rule, |v, _| g * v.value);
         let rhs: Vec<f64> = self
             .numbering
@@ -104,7 +104,7 @@ impl ModelSystem for MembraneSystem<'_> {
                 let lam = &self.lambda_space;
                 let c_full = assemble_bilinear(lam, u, &rule, mass);
                 let all_rows = DofNumbering::all_free(lam.n_dofs());
-                let (c, c_shift) = eliminate(&c_full, &all_rows, &self.numbering, &fixed_values);
+                let (c, c_shift) = eliminate(c_full, &all_rows, &self.numbering, &fixed_values);
                 let (mut g_vec, weights) = match self.pair {
                     ElementPair::P1bP0 => {
                         // g_T = ∫_T φ_h with φ_h the P1 interpolant; w_T = |T|.
@@ -133,14 +133,14 @@ impl ModelSystem for MembraneSystem<'_> {
                 // C_free x + C_fixed u_fixed ≥ g.
                 g_vec.iter_mut().zip(&c_shift).for_each(|(gi, s)| *gi += s);
                 Some(Constraint {
-                    matrix: c.to_sparse(),
+                    matrix: c.into_sparse(),
                     obstacle: g_vec,
                     weights,
                 })
             }
         };
         Ok(ContactProblem {
-            matrix: k.to_sparse(),
+            matrix: k.into_sparse(),
             kind: MatrixKind::SymmetricPositiveDefinite,
             n_primal: rhs.len(),
             rhs,

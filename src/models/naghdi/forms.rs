@@ -337,7 +337,7 @@ pub fn assemble_shell(
 ) -> (ContactProblem, DofNumbering) {
     let numbering = clamped_numbering(mesh, clamped_tags);
     let (a_full, f_full) = assemble_shell_full(mesh, chart, material, rho, load);
-    let problem = restrict_shell(mesh, &a_full, &f_full, &numbering);
+    let problem = restrict_shell(mesh, a_full, &f_full, &numbering);
     (problem, numbering)
 }
 
@@ -348,7 +348,7 @@ pub fn assemble_shell(
 /// reduction eliminated it) K is symmetric positive definite.
 pub fn restrict_shell(
     mesh: &Mesh,
-    a_full: &Triplets,
+    a_full: Triplets,
     f_full: &[f64],
     numbering: &DofNumbering,
 ) -> ContactProblem {
@@ -367,7 +367,7 @@ pub fn restrict_shell(
         MatrixKind::SymmetricPositiveDefinite
     };
     ContactProblem {
-        matrix: a.to_sparse(),
+        matrix: a.into_sparse(),
         kind,
         rhs: numbering.restrict(f_full),
         n_primal,
@@ -522,9 +522,9 @@ pub fn plane_constraint(
     }
     let rows = DofNumbering::all_free(mesh.n_triangles());
     let zeros = vec![0.0; layout.n_total()];
-    let (c, _) = eliminate(&c_full, &rows, numbering, &zeros);
+    let (c, _) = eliminate(c_full, &rows, numbering, &zeros);
     Constraint {
-        matrix: c.to_sparse(),
+        matrix: c.into_sparse(),
         obstacle,
         weights,
     }
@@ -704,7 +704,7 @@ mod tests {
         for (chart, x) in cases {
             let (a, _) = assemble_shell_full(&mesh, &chart, &material(), 1e3, [0.0; 3]);
             let scale = a.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()));
-            let ax = crate::assembly::mat_vec(&a.to_sparse(), &x);
+            let ax = crate::assembly::mat_vec(&a.into_sparse(), &x);
             let worst = ax.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             assert!(worst < 1e-12 * scale, "{chart:?}: |K U_rigid| = {worst:e}");
         }

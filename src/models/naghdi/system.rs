@@ -164,7 +164,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                 &mut f_full,
             );
         }
-        let mut problem = restrict_shell(self.mesh, &a_full, &f_full, &self.numbering);
+        let mut problem = restrict_shell(self.mesh, a_full, &f_full, &self.numbering);
         if problem.n_primal < problem.n() {
             // ψ present: balance its rows with K's (needed for large ρ).
             let sigma = balanced_tangency_scale(&problem);
