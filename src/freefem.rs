@@ -17,7 +17,7 @@
 //! FreeFEM tests use the same code.
 
 use crate::error::{Error, Result};
-use crate::linalg::factorize_checked;
+use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::Mesh;
 use crate::models::naghdi::geometry::Chart;
 use crate::models::{contact_fields, vertex_field};
@@ -294,7 +294,12 @@ pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
         Some(Alpha::Keyword(_)) => {
             let system = crate::pipeline::setup_model(scene, mesh)?;
             let problem = system.assemble(scene)?;
-            let f = factorize_checked(&problem.matrix, problem.kind, "α = auto (Lanczos)")?;
+            let f = factorize_checked(
+                &problem.matrix,
+                problem.kind,
+                Solves::Many,
+                "α = auto (Lanczos)",
+            )?;
             let step_form = scene.solver.step_form.unwrap_or(StepForm::Mean);
             Ok(crate::pipeline::choose_alpha(
                 Alpha::Keyword(AlphaKeyword::Auto),

@@ -7,7 +7,7 @@
 
 use crate::assembly::{mat_vec, norm2, Triplets};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, Factorization, MatrixKind};
+use crate::linalg::{factorize_checked, Factorization, MatrixKind, Solves};
 use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
@@ -150,13 +150,18 @@ pub fn scene_condition(scene: &Scene, msh: &Path) -> Result<Conditions> {
     };
     let problem: ContactProblem = system.assemble(scene)?;
     let what = problem.kind.describe();
-    let f = factorize_checked(&problem.matrix, problem.kind, what)?;
+    let f = factorize_checked(&problem.matrix, problem.kind, Solves::Many, what)?;
     let kappa = condition_estimate(&problem.matrix, &f);
     let primal = (problem.n_primal < problem.n()).then(|| {
         let k = primal_block(&problem);
-        factorize_checked(&k, MatrixKind::SymmetricPositiveDefinite, "K_ρ (a_ρ)")
-            .map(|f| condition_estimate(&k, &f))
-            .map_err(|e| e.to_string())
+        factorize_checked(
+            &k,
+            MatrixKind::SymmetricPositiveDefinite,
+            Solves::Many,
+            "K_ρ (a_ρ)",
+        )
+        .map(|f| condition_estimate(&k, &f))
+        .map_err(|e| e.to_string())
     });
     Ok((kappa, primal))
 }

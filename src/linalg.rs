@@ -7,11 +7,13 @@ use crate::error::{Error, Result};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::solvers::Solve;
+use faer::perm::PermRef;
+use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
 };
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::SparseColMat;
+use faer::sparse::{FaerError, SparseColMat};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
@@ -27,6 +29,22 @@ pub enum MatrixKind {
     SymmetricSaddle { n_primal: usize },
     /// Anything else: LU with partial pivoting.
     General,
+}
+
+/// How many solves a factorisation will serve: it picks the ordering of a
+/// symmetric saddle matrix (the other kinds ignore it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Solves {
+    /// One or a few (a Newton step, the floor): AMD, the least fill; some
+    /// multipliers come before their neighbours, so each solve is refined
+    /// once against the true matrix.
+    Few,
+    /// Many (Uzawa, FISTA, Lanczos): every multiplier right after its last
+    /// primal neighbour in the AMD order, so no pivot is regularised and
+    /// one triangular sweep per solve suffices. Measured on the shell at
+    /// n = 64: factorisation 0.57 s instead of 0.47 s, solve 0.022 s instead
+    /// of 0.032 s, peak RSS 418 MB instead of 367 MB.
+    Many,
 }
 
 impl MatrixKind {
@@ -48,7 +66,12 @@ pub enum Factorization {
 
 impl Factorization {
     /// Factorises `a`; `what` names the matrix in error messages.
-    pub fn new(a: &SparseColMat<usize, f64>, kind: MatrixKind, what: &str) -> Result<Self> {
+    pub fn new(
+        a: &SparseColMat<usize, f64>,
+        kind: MatrixKind,
+        solves: Solves,
+        what: &str,
+    ) -> Result<Self> {
         if a.nrows() != a.ncols() {
             return Err(Error::numerical(
                 what,
@@ -78,7 +101,7 @@ impl Factorization {
             }
             MatrixKind::SymmetricSaddle { .. } => {
                 // The one fallback chain of ReusableFactorization.
-                ReusableFactorization::analyze(a, kind, what)?
+                ReusableFactorization::analyze(a, kind, solves, what)?
                     .factorize(a, what)?
                     .0
             }
@@ -106,9 +129,10 @@ impl Factorization {
 pub fn factorize_checked(
     a: &SparseColMat<usize, f64>,
     kind: MatrixKind,
+    solves: Solves,
     what: &str,
 ) -> Result<Factorization> {
-    let f = Factorization::new(a, kind, what)?;
+    let f = Factorization::new(a, kind, solves, what)?;
     check_test_solve(a, &f, what)?;
     Ok(f)
 }
@@ -227,7 +251,12 @@ pub struct ReusableFactorization {
 
 impl ReusableFactorization {
     /// The symbolic analysis of the pattern of `a` (values are not read).
-    pub fn analyze(a: &SparseColMat<usize, f64>, kind: MatrixKind, what: &str) -> Result<Self> {
+    pub fn analyze(
+        a: &SparseColMat<usize, f64>,
+        kind: MatrixKind,
+        solves: Solves,
+        what: &str,
+    ) -> Result<Self> {
         if a.nrows() != a.ncols() {
             return Err(Error::numerical(
                 what,
@@ -241,7 +270,7 @@ impl ReusableFactorization {
                     .map_err(|e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")))?,
             ),
             MatrixKind::SymmetricSaddle { n_primal } => SymbolicAnalysis::Ldlt {
-                symbolic: Arc::new(analyze_symmetric(a, what)?),
+                symbolic: Arc::new(analyze_symmetric(a, n_primal, solves, what)?),
                 n_primal,
             },
             MatrixKind::SymmetricPositiveDefinite => SymbolicAnalysis::Llt(
@@ -432,15 +461,77 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
     d
 }
 
-/// The symbolic LDLᵀ analysis: AMD ordering of the symmetric pattern.
-fn analyze_symmetric(a: &SparseColMat<usize, f64>, what: &str) -> Result<SymbolicCholesky<usize>> {
-    factorize_symbolic_cholesky(
+/// The symbolic LDLᵀ analysis in the ordering `solves` asks for.
+fn analyze_symmetric(
+    a: &SparseColMat<usize, f64>,
+    n_primal: usize,
+    solves: Solves,
+    what: &str,
+) -> Result<SymbolicCholesky<usize>> {
+    let fail = |e: FaerError| Error::numerical(what, "LDLᵀ (symbolic)", format!("{e:?}"));
+    match solves {
+        Solves::Few => factorize_symbolic_cholesky(
+            a.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            Default::default(),
+        ),
+        Solves::Many => {
+            let (fwd, inv) = multipliers_after_neighbours(a, n_primal).map_err(fail)?;
+            factorize_symbolic_cholesky(
+                a.symbolic(),
+                Side::Lower,
+                SymmetricOrdering::Custom(PermRef::new_checked(&fwd, &inv, a.nrows())),
+                Default::default(),
+            )
+        }
+    }
+    .map_err(fail)
+}
+
+/// The AMD order of the symmetric pattern with every multiplier (index ≥
+/// n_primal) moved right after the last of its primal neighbours: its
+/// pivot is then the nonzero local Schur complement −b K⁻¹ bᵀ instead of 0.
+/// Returns (forward, inverse), forward[new] = old.
+fn multipliers_after_neighbours(
+    a: &SparseColMat<usize, f64>,
+    n_primal: usize,
+) -> std::result::Result<(Vec<usize>, Vec<usize>), FaerError> {
+    let n = a.nrows();
+    let (mut fwd, mut inv) = (vec![0usize; n], vec![0usize; n]);
+    let mut buffer =
+        MemBuffer::try_new(amd::order_maybe_unsorted_scratch::<usize>(n, a.val().len()))
+            .map_err(|_| FaerError::OutOfMemory)?;
+    amd::order_maybe_unsorted(
+        &mut fwd,
+        &mut inv,
         a.symbolic(),
-        Side::Lower,
-        SymmetricOrdering::Amd,
         Default::default(),
-    )
-    .map_err(|e| Error::numerical(what, "LDLᵀ (symbolic)", format!("{e:?}")))
+        MemStack::new(&mut buffer),
+    )?;
+    // Sort key: (position of the last primal neighbour, after the primal
+    // unknown at that position, own AMD position).
+    let mut order: Vec<(usize, bool, usize, usize)> = (0..n)
+        .map(|j| {
+            if j < n_primal {
+                return (inv[j], false, inv[j], j);
+            }
+            let last = a
+                .symbolic()
+                .row_idx_of_col(j)
+                .filter(|&i| i < n_primal)
+                .map(|i| inv[i])
+                .max()
+                .unwrap_or(inv[j]);
+            (last, true, inv[j], j)
+        })
+        .collect();
+    order.sort_unstable();
+    for (new, &(_, _, _, old)) in order.iter().enumerate() {
+        fwd[new] = old;
+        inv[old] = new;
+    }
+    Ok((fwd, inv))
 }
 
 /// Relative size of the regularised pivots: δ = √ε · max|DAD| (D the

@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
-use crate::linalg::factorize_checked;
+use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
 use crate::models::naghdi::system::NaghdiSystem;
@@ -288,7 +288,13 @@ fn solve(
     // One factorisation, reused by every iteration.
     let t = Instant::now();
     let what = problem.kind.describe();
-    let factorization = factorize_checked(&problem.matrix, problem.kind, what)?;
+    // Uzawa: one solve per iteration; without contact: one solve.
+    let solves = if problem.constraint.is_some() {
+        Solves::Many
+    } else {
+        Solves::Few
+    };
+    let factorization = factorize_checked(&problem.matrix, problem.kind, solves, what)?;
     let factor_seconds = t.elapsed().as_secs_f64();
     if problem.constraint.is_none() {
         return Ok((

@@ -29,7 +29,7 @@ mod common;
 use common::{check_success, max_abs, read_ff_mesh, read_info, read_numbers, rel_diff};
 use obstacle_fem::assembly::DofNumbering;
 use obstacle_fem::gmsh::run_gmsh;
-use obstacle_fem::linalg::factorize_checked;
+use obstacle_fem::linalg::{factorize_checked, Solves};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::naghdi::forms::{
     assemble_shell, balanced_tangency_scale, rigid_plane_constraint, scale_tangency_multiplier,
@@ -132,6 +132,7 @@ fn rust_run(mesh: &Mesh, uzawa_form: Option<(StepForm, usize)>) -> Run {
     let factorization = factorize_checked(
         &problem.matrix,
         problem.kind,
+        Solves::Many,
         "Naghdi saddle matrix (FreeFEM check)",
     )
     .unwrap_or_else(|e| panic!("{e}"));

@@ -8,7 +8,7 @@
 
 use obstacle_fem::assembly::{integrate_per_triangle, mat_vec, norm2, norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
-use obstacle_fem::linalg::{factorize_checked, MatrixKind};
+use obstacle_fem::linalg::{factorize_checked, MatrixKind, Solves};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::naghdi::forms::{
     assemble_shell, balanced_tangency_scale, obstacle_at_vertices, rigid_plane_constraint,
@@ -68,7 +68,7 @@ fn solve_free(
 ) -> FreeSolution {
     let (problem, numbering) = assemble_shell(mesh, chart, material, rho, load, None);
     let start = Instant::now();
-    let f = factorize_checked(&problem.matrix, problem.kind, "shell").unwrap();
+    let f = factorize_checked(&problem.matrix, problem.kind, Solves::Few, "shell").unwrap();
     let report = solve_linear(&problem, &f, start.elapsed().as_secs_f64()).unwrap();
     let layout = ShellLayout::new(mesh);
     let full = numbering.extend(&report.x, &vec![0.0; layout.n_total()]);
@@ -317,7 +317,8 @@ fn hypar_penalty_rho() {
         let (mut problem, _) = assemble_shell(&mesh, &chart, &material, rho, load, None);
         let sigma = balanced_tangency_scale(&problem);
         scale_tangency_multiplier(&mut problem, sigma);
-        let f = factorize_checked(&problem.matrix, problem.kind, "scaled shell").unwrap();
+        let f =
+            factorize_checked(&problem.matrix, problem.kind, Solves::Few, "scaled shell").unwrap();
         let report = solve_linear(&problem, &f, 0.0).unwrap();
         let np = problem.n_primal;
         let u = &report.x[..np];

@@ -68,7 +68,7 @@ use super::{ContactProblem, SolveReport};
 use crate::assembly::{mat_vec, norm_inf};
 use crate::error::{Error, Result};
 use crate::linalg::{
-    factorize_checked, first_non_finite, refine, MatrixKind, ReusableFactorization,
+    factorize_checked, first_non_finite, refine, MatrixKind, ReusableFactorization, Solves,
 };
 use crate::progress::IterationProgress;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
@@ -245,7 +245,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     let start = Instant::now();
     let Some(c) = problem.constraint.as_ref() else {
         let t = Instant::now();
-        let f = factorize_checked(&problem.matrix, problem.kind, "system matrix")?;
+        let f = factorize_checked(&problem.matrix, problem.kind, Solves::Few, "system matrix")?;
         let mut report = solve_linear(problem, &f, t.elapsed().as_secs_f64())?;
         report.wall_seconds = start.elapsed().as_secs_f64();
         return Ok(report);
@@ -308,8 +308,12 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             }
         }
     };
-    let mut factorizer =
-        ReusableFactorization::analyze(&newton.matrix, kind, "active-set Newton matrix")?;
+    let mut factorizer = ReusableFactorization::analyze(
+        &newton.matrix,
+        kind,
+        Solves::Few,
+        "active-set Newton matrix",
+    )?;
     let mut factor_seconds = t.elapsed().as_secs_f64();
 
     let mut history = History::for_solver(&EXTRA_COLUMNS);

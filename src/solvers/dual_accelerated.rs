@@ -35,7 +35,7 @@ use super::uzawa::solve_linear;
 use super::{ContactProblem, SolveReport};
 use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
-use crate::linalg::factorize_checked;
+use crate::linalg::{factorize_checked, Solves};
 use crate::progress::IterationProgress;
 use crate::scene::StepForm;
 use std::time::Instant;
@@ -99,7 +99,8 @@ pub fn dual_accelerated(
 ) -> Result<SolveReport> {
     let start = Instant::now();
     let t = Instant::now();
-    let factorization = factorize_checked(&problem.matrix, problem.kind, "system matrix")?;
+    let factorization =
+        factorize_checked(&problem.matrix, problem.kind, Solves::Many, "system matrix")?;
     let factor_seconds = t.elapsed().as_secs_f64();
     let Some(c) = problem.constraint.as_ref() else {
         let mut report = solve_linear(problem, &factorization, factor_seconds)?;

@@ -58,7 +58,7 @@ use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, SolveReport};
 use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, MatrixKind};
+use crate::linalg::{factorize_checked, MatrixKind, Solves};
 use crate::progress::IterationProgress;
 use crate::scene::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
@@ -214,6 +214,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     let factorization = factorize_checked(
         &k_block,
         MatrixKind::SymmetricPositiveDefinite,
+        Solves::Many,
         "primal block K",
     )?;
     let factor_seconds = t.elapsed().as_secs_f64();
