@@ -8,11 +8,8 @@
 use crate::assembly::{mat_vec, norm2, Triplets};
 use crate::error::{Error, Result};
 use crate::linalg::{factorize_checked, Factorization, MatrixKind, Solves};
-use crate::models::membrane::MembraneSystem;
-use crate::models::naghdi::system::NaghdiSystem;
-use crate::models::ModelSystem;
-use crate::pipeline::{run_scene, scene_mesh, RunSummary};
-use crate::scene::{Model, Scene};
+use crate::pipeline::{run_scene, scene_mesh, setup_model, RunSummary};
+use crate::scene::Scene;
 use crate::solvers::ContactProblem;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -144,10 +141,7 @@ pub type Conditions = (f64, Option<std::result::Result<f64, String>>);
 /// mesh goes to `msh`), and estimate its condition number, and that of K_ρ.
 pub fn scene_condition(scene: &Scene, msh: &Path) -> Result<Conditions> {
     let mesh = scene_mesh(scene, msh)?;
-    let system: Box<dyn ModelSystem + '_> = match scene.model {
-        Model::Membrane => Box::new(MembraneSystem::setup(&mesh, scene)?),
-        Model::Naghdi => Box::new(NaghdiSystem::setup(&mesh, scene)?),
-    };
+    let system = setup_model(scene, &mesh)?;
     let problem: ContactProblem = system.assemble(scene)?;
     let what = problem.kind.describe();
     let f = factorize_checked(&problem.matrix, problem.kind, Solves::Many, what)?;

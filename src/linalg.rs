@@ -65,75 +65,24 @@ pub enum Factorization {
 }
 
 impl Factorization {
-    /// Factorises `a`; `what` names the matrix in error messages.
-    pub fn new(
-        a: &SparseColMat<usize, f64>,
-        kind: MatrixKind,
-        solves: Solves,
-        what: &str,
-    ) -> Result<Self> {
-        if a.nrows() != a.ncols() {
-            return Err(Error::numerical(
-                what,
-                "shape",
-                format!("{}×{} is not square", a.nrows(), a.ncols()),
-            ));
-        }
-        if let Some(k) = a.val().iter().position(|v| !v.is_finite()) {
-            return Err(Error::numerical(
-                what,
-                "matrix entries",
-                format!("entry {k} is not finite"),
-            ));
-        }
-        let f = match kind {
-            MatrixKind::SymmetricPositiveDefinite => {
-                let symbolic = SymbolicLlt::try_new(a.symbolic(), Side::Lower)
-                    .map_err(|e| Error::numerical(what, "Cholesky (symbolic)", format!("{e:?}")))?;
-                let llt = Llt::try_new_with_symbolic(symbolic, a.as_ref(), Side::Lower).map_err(|e| {
-                    Error::numerical(
-                        what,
-                        "Cholesky",
-                        format!("the matrix is not positive definite ({e:?}): is the problem constrained enough (Dirichlet part, coercivity)?"),
-                    )
-                })?;
-                Factorization::Cholesky(llt)
-            }
-            MatrixKind::SymmetricSaddle { .. } => {
-                // The one fallback chain of ReusableFactorization.
-                ReusableFactorization::analyze(a, kind, solves, what)?
-                    .factorize(a, what)?
-                    .0
-            }
-            MatrixKind::General => {
-                let symbolic = SymbolicLu::try_new(a.symbolic())
-                    .map_err(|e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")))?;
-                let lu = Lu::try_new_with_symbolic(symbolic, a.as_ref()).map_err(|e| {
-                    Error::numerical(what, "LU", format!("singular matrix ({e:?})"))
-                })?;
-                Factorization::Lu(Box::new(lu))
-            }
-        };
-        Ok(f)
-    }
-
     /// Solves A x = b in place.
     pub fn solve_in_place(&self, b: &mut [f64]) {
         self.solve_block_in_place(b, 1);
     }
 }
 
-/// Factorises `a` and checks the factorisation on one solve: a numerically
-/// singular matrix shows up as a non-finite or inaccurate solution even when
-/// the factorisation itself "succeeds".
+/// Factorises `a` (symbolic analysis and numeric factorisation of
+/// [`ReusableFactorization`], used once) and checks the factorisation on one
+/// solve: a numerically singular matrix shows up as a non-finite or
+/// inaccurate solution even when the factorisation itself "succeeds".
+/// `what` names the matrix in error messages.
 pub fn factorize_checked(
     a: &SparseColMat<usize, f64>,
     kind: MatrixKind,
     solves: Solves,
     what: &str,
 ) -> Result<Factorization> {
-    let f = Factorization::new(a, kind, solves, what)?;
-    check_test_solve(a, &f, what)?;
+    let (f, _) = ReusableFactorization::analyze(a, kind, solves, what)?.factorize(a, what)?;
     Ok(f)
 }
 
@@ -357,7 +306,11 @@ impl ReusableFactorization {
             SymbolicAnalysis::Llt(symbolic) => Factorization::Cholesky(
                 Llt::try_new_with_symbolic(symbolic.clone(), a.as_ref(), Side::Lower).map_err(
                     |e| {
-                        Error::numerical(what, "Cholesky", format!("not positive definite ({e:?})"))
+                        Error::numerical(
+                            what,
+                            "Cholesky",
+                            format!("the matrix is not positive definite ({e:?}): is the problem constrained enough (Dirichlet part, coercivity)?"),
+                        )
                     },
                 )?,
             ),

@@ -8,7 +8,7 @@ use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
-use crate::output::{write_result, AttrValue, Location, ResultData};
+use crate::output::{numeric_attr, write_result, AttrValue, Location, ResultData};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, StepForm};
 use crate::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
@@ -52,14 +52,7 @@ pub struct RunSummary {
 impl RunSummary {
     /// A numeric root attribute of the result, by name.
     pub fn attr(&self, name: &str) -> Option<f64> {
-        self.attrs
-            .iter()
-            .find(|(k, _)| k == name)
-            .and_then(|(_, v)| match v {
-                AttrValue::F64(x) => Some(*x),
-                AttrValue::I64(x) => Some(*x as f64),
-                _ => None,
-            })
+        numeric_attr(&self.attrs, name)
     }
 }
 

@@ -12,7 +12,7 @@ use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{
-    factorize_checked, residual, Factorization, MatrixKind, ReusableFactorization, Solves,
+    factorize_checked, residual, MatrixKind, ReusableFactorization, Solves,
 };
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::membrane::MembraneSystem;
@@ -555,8 +555,7 @@ fn against_lu(problem: &ContactProblem, solves: Solves) -> (&'static str, f64, f
     let (f, _) = chain.factorize(&problem.matrix, "shell").unwrap();
     let mut x = problem.rhs.clone();
     f.solve_in_place(&mut x);
-    let lu =
-        Factorization::new(&problem.matrix, MatrixKind::General, Solves::Few, "shell").unwrap();
+    let lu = factorize_checked(&problem.matrix, MatrixKind::General, Solves::Few, "shell").unwrap();
     let mut x_lu = problem.rhs.clone();
     lu.solve_in_place(&mut x_lu);
     let diff: Vec<f64> = x.iter().zip(&x_lu).map(|(a, b)| a - b).collect();

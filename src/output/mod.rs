@@ -16,6 +16,19 @@ pub enum AttrValue {
     Str(String),
 }
 
+/// The value of the numeric attribute `name` in `attrs` (integers as f64);
+/// None when absent or not a number.
+pub fn numeric_attr(attrs: &[(String, AttrValue)], name: &str) -> Option<f64> {
+    attrs
+        .iter()
+        .find(|(k, _)| k == name)
+        .and_then(|(_, v)| match v {
+            AttrValue::F64(x) => Some(*x),
+            AttrValue::I64(x) => Some(*x as f64),
+            _ => None,
+        })
+}
+
 /// A field sampled at vertices (`[Nv]` or `[Nv, components]`) or cells (`[Nt]`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Field {
