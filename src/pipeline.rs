@@ -249,7 +249,7 @@ fn solve(
                     show_progress,
                     initial_lambda: start_lambda,
                     cold_start: match solver.cold_start {
-                        ColdStartSpec::DepthBisection => ColdStart::DepthBisection { probes: 6 },
+                        ColdStartSpec::DepthBisection => ColdStart::DEPTH_BISECTION,
                         ColdStartSpec::Plain => ColdStart::Plain,
                     },
                     ..Default::default()

@@ -109,7 +109,7 @@ impl Default for ActiveSetOptions {
             c: None,
             initial_lambda: None,
             initial_x: None,
-            cold_start: ColdStart::DepthBisection { probes: 6 },
+            cold_start: ColdStart::DEPTH_BISECTION,
             refinement_steps: 1,
             show_progress: false,
         }
@@ -126,6 +126,12 @@ pub enum ColdStart {
     /// Bisection on the layer depth inside the free solution's penetration
     /// set, at most `probes` probes, then plain PDAS.
     DepthBisection { probes: usize },
+}
+
+impl ColdStart {
+    /// The depth bisection with its measured budget: 3, 4, 6, 8 probes give
+    /// 27, 21, 20, 20 Newton solves on the shell at n = 128.
+    pub const DEPTH_BISECTION: ColdStart = ColdStart::DepthBisection { probes: 6 };
 }
 
 /// The Newton matrix with its fixed pattern and the positions of the
