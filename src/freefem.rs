@@ -385,7 +385,7 @@ pub fn script_args(
                 "-eps".into(),
                 f(shell.thickness),
                 "-rho".into(),
-                f(shell.rho),
+                f(shell.rho.unwrap_or(0.0)),
                 "-f1".into(),
                 f(load[0]),
                 "-f2".into(),
@@ -456,8 +456,12 @@ pub fn run_freefem_scene(
         None => out.with_extension("msh"),
     };
     let mesh = scene_mesh(scene, &msh)?;
-    if scene.element == ElementPair::P2P1 && scene.model == Model::Naghdi {
-        return Err(scene_error(scene, "element", "the shell is p1b-p0"));
+    if scene.element == ElementPair::P2P2bPsri {
+        return Err(scene_error(
+            scene,
+            "element",
+            "the FreeFEM twin of p2-p2b-psri is not wired into `obstacle freefem` yet; `obstacle freefem` runs the thesis' p1b-p0",
+        ));
     }
     let plan = match &scene.obstacle {
         Some(_) => Some(uzawa_plan(scene, resolve_alpha(scene, &mesh)?, iterations)),
@@ -620,6 +624,7 @@ fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> 
     let (nu, nl, location) = match scene.element {
         ElementPair::P1bP0 => (nv + nt, nt, Location::Cell),
         ElementPair::P2P1 => (nv + mesh.n_edges(), nv, Location::Vertex),
+        ElementPair::P2P2bPsri => unreachable!("refused by run_freefem_scene"),
     };
     let u = read_len(&file("u.txt"), nu)?;
     let mut data = ResultData {

@@ -63,11 +63,12 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
         return Mesh::read_msh(&scene.resolve(file));
     }
     let geo = scene.resolve(scene.mesh.geo.as_deref().expect("validated: geo or file"));
-    let params: Vec<(String, f64)> = match (scene.mesh.n, scene.mesh.h) {
+    let mut params: Vec<(String, f64)> = match (scene.mesh.n, scene.mesh.h) {
         (Some(n), _) => vec![("n".into(), n as f64)],
         (None, Some(h)) => vec![("n".into(), 0.0), ("h".into(), h)],
         (None, None) => unreachable!("validated: n or h"),
     };
+    params.extend(scene.mesh.parameters.iter().map(|(k, v)| (k.clone(), *v)));
     run_gmsh(&geo, msh_path, &params)?;
     Mesh::read_msh(msh_path)
 }

@@ -62,6 +62,11 @@ pub enum ElementPair {
     /// P2 for u, P1 for λ (constraint tested with P1 hats).
     #[serde(rename = "p2-p1")]
     P2P1,
+    /// Shell only, the locking-free element: P2 displacements, P2⊕B3 tangent
+    /// rotations r = θ^β a_β, partial selective reduced integration of the
+    /// membrane and shear energies; P1 contact multipliers.
+    #[serde(rename = "p2-p2b-psri")]
+    P2P2bPsri,
 }
 
 impl ElementPair {
@@ -69,6 +74,7 @@ impl ElementPair {
         match self {
             ElementPair::P1bP0 => "p1b-p0",
             ElementPair::P2P1 => "p2-p1",
+            ElementPair::P2P2bPsri => "p2-p2b-psri",
         }
     }
 }
@@ -87,6 +93,10 @@ pub struct MeshSpec {
     /// Physical names of the boundary parts where the Dirichlet condition holds
     /// (default: the whole boundary).
     pub dirichlet: Option<Vec<String>>,
+    /// Numbers passed to gmsh as `-setnumber NAME VALUE` (e.g. the corners
+    /// x0, x1, y0, y1 of meshes/rectangle.geo).
+    #[serde(default)]
+    pub parameters: std::collections::BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -126,10 +136,81 @@ pub struct ShellSpec {
     pub poisson: f64,
     /// Thickness ε.
     pub thickness: f64,
-    /// Penalty ρ ≥ 0 of a_ρ = a + ρ ∫ ∇(r·a3)·∇(s·a3) (ρ = 0: a_ρ is not coercive).
-    pub rho: f64,
-    /// Physical names of the clamped parts γ0 (u = r = ψ = 0); default: all of ∂ω.
+    /// Penalty ρ ≥ 0 of a_ρ = a + ρ ∫ ∇(r·a3)·∇(s·a3) (ρ = 0: a_ρ is not
+    /// coercive). Needed by `p1b-p0`; `p2-p2b-psri` has tangent rotations and
+    /// no penalty (a given ρ is recorded and unused).
+    pub rho: Option<f64>,
+    /// Physical names of the clamped parts γ0 (u = r = ψ = 0); default: all
+    /// of ∂ω when no `[[shell.boundary]]` is given, none otherwise.
     pub clamped: Option<Vec<String>>,
+    /// Conditions per boundary part and component; parts named nowhere are free.
+    #[serde(default)]
+    pub boundary: Vec<BoundarySpec>,
+}
+
+/// The condition on one boundary part (`[[shell.boundary]]`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundarySpec {
+    /// Physical name of the boundary part.
+    pub part: String,
+    pub condition: BoundaryCondition,
+    /// The normal e1, e2 or e3 ("x", "y", "z") of the symmetry plane or of
+    /// the diaphragm's plane.
+    pub normal: Option<Axis>,
+    /// The fixed fields for `condition = "fixed"` (u1, u2, u3 and r1, r2, r3,
+    /// psi or theta1, theta2 by element).
+    pub fix: Option<Vec<String>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BoundaryCondition {
+    /// u = 0 and r = 0.
+    Clamped,
+    /// u = 0, rotations free (hard simple support).
+    SimplySupported,
+    /// Mirror symmetry about the plane with normal n: u·n = 0, r·n = 0.
+    Symmetry,
+    /// A rigid diaphragm in the plane with normal n: the two displacement
+    /// components in that plane are 0; u·n and the rotations are free.
+    Diaphragm,
+    /// Nothing fixed (the default for parts named nowhere).
+    Free,
+    /// The fields listed in `fix` are 0.
+    Fixed,
+}
+
+impl BoundaryCondition {
+    pub fn name(self) -> &'static str {
+        match self {
+            BoundaryCondition::Clamped => "clamped",
+            BoundaryCondition::SimplySupported => "simply-supported",
+            BoundaryCondition::Symmetry => "symmetry",
+            BoundaryCondition::Diaphragm => "diaphragm",
+            BoundaryCondition::Free => "free",
+            BoundaryCondition::Fixed => "fixed",
+        }
+    }
+}
+
+/// A Cartesian axis e1, e2, e3.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    X,
+    Y,
+    Z,
+}
+
+impl Axis {
+    pub fn index(self) -> usize {
+        match self {
+            Axis::X => 0,
+            Axis::Y => 1,
+            Axis::Z => 2,
+        }
+    }
 }
 
 impl ShellSpec {
@@ -466,6 +547,18 @@ impl Scene {
         if let Some(h) = m.h {
             positive("mesh.h", h)?;
         }
+        for (name, value) in &m.parameters {
+            let field = format!("mesh.parameters.{name}");
+            finite(&field, *value)?;
+            let ident = name.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
+                && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+            if !ident || name == "n" || name == "h" {
+                return Err(self.error(
+                    &field,
+                    "a gmsh parameter is a name of letters, digits and _ (not `n` or `h`: those are mesh.n, mesh.h)",
+                ));
+            }
+        }
         if let Some(o) = &self.obstacle {
             finite("obstacle.height", o.level())?;
             finite("obstacle.curvature", o.curvature.unwrap_or(0.0))?;
@@ -566,6 +659,12 @@ impl Scene {
         if self.shell.is_some() {
             return Err(self.error("shell", "a [shell] table needs model = \"naghdi\""));
         }
+        if self.element == ElementPair::P2P2bPsri {
+            return Err(self.error(
+                "element",
+                "\"p2-p2b-psri\" is a shell element; the membrane takes \"p1b-p0\" or \"p2-p1\"",
+            ));
+        }
         if let Some(o) = &self.obstacle {
             if o.shape != ObstacleShape::Paraboloid {
                 return Err(self.error(
@@ -611,27 +710,70 @@ impl Scene {
             .material()
             .validate()
             .map_err(|reason| self.error(&material_field(&reason), reason))?;
-        self.check_finite("shell.rho", shell.rho)?;
-        if shell.rho < 0.0 {
-            return Err(self.error(
-                "shell.rho",
-                format!("the penalty must be ≥ 0, got {}", shell.rho),
-            ));
+        match (self.element, shell.rho) {
+            (ElementPair::P1bP0, None) => {
+                return Err(self.error(
+                    "shell.rho",
+                    "the thesis element (p1b-p0) needs the penalty ρ of a_ρ (the thesis takes 1e3)",
+                ))
+            }
+            (ElementPair::P2P1, _) => {
+                return Err(self.error(
+                    "element",
+                    "the shell elements are \"p1b-p0\" (the thesis') and \"p2-p2b-psri\" (locking-free)",
+                ))
+            }
+            _ => {}
         }
-        if shell.rho == 0.0
-            && self.solver.method == Method::UzawaSplit
-            && !matches!(shell.chart, Chart::Plate { .. })
-        {
-            return Err(self.error(
-                "shell.rho",
-                "a_ρ is not coercive at ρ = 0 (thesis §5.3): the first splitting (method = \"uzawa-split\") factorises K_ρ alone and needs ρ > 0 (the thesis takes 1e3); the saddle-point methods (uzawa, active-set, dual-accelerated) accept ρ = 0",
-            ));
+        if let Some(rho) = shell.rho {
+            self.check_finite("shell.rho", rho)?;
+            if rho < 0.0 {
+                return Err(self.error("shell.rho", format!("the penalty must be ≥ 0, got {rho}")));
+            }
+            if rho == 0.0
+                && self.element == ElementPair::P1bP0
+                && self.solver.method == Method::UzawaSplit
+                && !matches!(shell.chart, Chart::Plate { .. })
+            {
+                return Err(self.error(
+                    "shell.rho",
+                    "a_ρ is not coercive at ρ = 0 (thesis §5.3): the first splitting (method = \"uzawa-split\") factorises K_ρ alone and needs ρ > 0 (the thesis takes 1e3); the saddle-point methods (uzawa, active-set, dual-accelerated) accept ρ = 0",
+                ));
+            }
         }
-        if self.element != ElementPair::P1bP0 {
-            return Err(self.error(
-                "element",
-                "the shell is discretised with P1⊕B3 for (U, ψ) and P0 for λ: element = \"p1b-p0\"",
-            ));
+        for (i, b) in shell.boundary.iter().enumerate() {
+            let field = format!("shell.boundary[{i}]");
+            let needs_normal = matches!(
+                b.condition,
+                BoundaryCondition::Symmetry | BoundaryCondition::Diaphragm
+            );
+            if needs_normal != b.normal.is_some() {
+                return Err(self.error(
+                    &format!("{field}.normal"),
+                    if needs_normal {
+                        format!("`{}`: condition \"{}\" needs the plane's normal: normal = \"x\", \"y\" or \"z\"", b.part, b.condition.name())
+                    } else {
+                        format!("`{}`: only \"symmetry\" and \"diaphragm\" take a normal", b.part)
+                    },
+                ));
+            }
+            if (b.condition == BoundaryCondition::Fixed) != b.fix.is_some() {
+                return Err(self.error(
+                    &format!("{field}.fix"),
+                    format!(
+                        "`{}`: `fix = [...]` goes with condition = \"fixed\" (and only with it)",
+                        b.part
+                    ),
+                ));
+            }
+            if shell.clamped.as_ref().is_some_and(|c| c.contains(&b.part))
+                || shell.boundary[..i].iter().any(|o| o.part == b.part)
+            {
+                return Err(self.error(
+                    &format!("{field}.part"),
+                    format!("`{}` has two conditions (shell.clamped and shell.boundary name each part once)", b.part),
+                ));
+            }
         }
         if self.mesh.dirichlet.is_some() {
             return Err(self.error(
@@ -654,10 +796,12 @@ impl Scene {
                     let name = if i < 3 { "traction" } else { "moment" };
                     self.check_finite(&format!("load.edge[{e}].{name}[{}]", i % 3), *v)?;
                 }
-                if shell
-                    .clamped
-                    .as_ref()
-                    .is_none_or(|c| c.contains(&edge.part))
+                let clamped_by_default = shell.clamped.is_none() && shell.boundary.is_empty();
+                if clamped_by_default
+                    || shell
+                        .clamped
+                        .as_ref()
+                        .is_some_and(|c| c.contains(&edge.part))
                 {
                     return Err(self.error(
                         &format!("load.edge[{e}].part"),

@@ -1,5 +1,5 @@
-//! Finite element spaces on a triangle mesh: the elements P0, P1, P1⊕B3 and
-//! P2, their basis functions in barycentric coordinates, and DOF maps.
+//! Finite element spaces on a triangle mesh: the elements P0, P1, P1⊕B3, P2
+//! and P2⊕B3, their basis functions in barycentric coordinates, and DOF maps.
 //!
 //! Global numbering (also the `/dofs/<name>` layout of the result file):
 //! - P0: one dof per triangle, in triangle order;
@@ -7,12 +7,15 @@
 //! - P1⊕B3: Nv vertex values, then Nt bubble amplitudes (b_T = 27 λ1λ2λ3,
 //!   value 1 at the centroid; the vertex functions are the plain hats, as in
 //!   FreeFEM's `P1b`);
-//! - P2: Nv vertex values, then one value per edge midpoint in `mesh.edges` order.
+//! - P2: Nv vertex values, then one value per edge midpoint in `mesh.edges` order;
+//! - P2⊕B3: the P2 dofs, then Nt bubble amplitudes (the Lagrange P2 basis
+//!   plus b_T = 27 λ1λ2λ3, as FreeFEM's `P2b` spans; b_T's coefficient is not
+//!   the centroid value, which also has the P2 part).
 
 use crate::mesh::Mesh;
 
 /// The largest number of local basis functions of any element here.
-pub const MAX_LOCAL: usize = 6;
+pub const MAX_LOCAL: usize = 7;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Element {
@@ -20,6 +23,7 @@ pub enum Element {
     P1,
     P1Bubble,
     P2,
+    P2Bubble,
 }
 
 /// Basis values and barycentric derivatives at one point of one element.
@@ -38,6 +42,7 @@ impl Element {
             Element::P1 => 3,
             Element::P1Bubble => 4,
             Element::P2 => 6,
+            Element::P2Bubble => 7,
         }
     }
 
@@ -46,7 +51,7 @@ impl Element {
         match self {
             Element::P0 => 0,
             Element::P1 => 1,
-            Element::P1Bubble => 3,
+            Element::P1Bubble | Element::P2Bubble => 3,
             Element::P2 => 2,
         }
     }
@@ -57,7 +62,38 @@ impl Element {
             Element::P1 => "P1",
             Element::P1Bubble => "P1+B3",
             Element::P2 => "P2",
+            Element::P2Bubble => "P2+B3",
         }
+    }
+
+    /// The short name stored with a coefficient vector (`space` attribute of
+    /// `/dofs/<name>`, FreeFEM's names): P0, P1, P1b, P2, P2b.
+    pub fn tag(self) -> &'static str {
+        match self {
+            Element::P0 => "P0",
+            Element::P1 => "P1",
+            Element::P1Bubble => "P1b",
+            Element::P2 => "P2",
+            Element::P2Bubble => "P2b",
+        }
+    }
+
+    /// The element of a [`Element::tag`].
+    pub fn from_tag(tag: &str) -> Option<Element> {
+        [
+            Element::P0,
+            Element::P1,
+            Element::P1Bubble,
+            Element::P2,
+            Element::P2Bubble,
+        ]
+        .into_iter()
+        .find(|e| e.tag() == tag)
+    }
+
+    /// Whether the element has one interior (bubble) dof per triangle, last.
+    pub fn has_bubble(self) -> bool {
+        matches!(self, Element::P1Bubble | Element::P2Bubble)
     }
 
     /// Basis at barycentric point `l`.
@@ -79,7 +115,7 @@ impl Element {
                     b.d_lambda[3] = [27.0 * l[1] * l[2], 27.0 * l[0] * l[2], 27.0 * l[0] * l[1]];
                 }
             }
-            Element::P2 => {
+            Element::P2 | Element::P2Bubble => {
                 for i in 0..3 {
                     b.values[i] = l[i] * (2.0 * l[i] - 1.0);
                     b.d_lambda[i][i] = 4.0 * l[i] - 1.0;
@@ -88,6 +124,10 @@ impl Element {
                     b.values[3 + i] = 4.0 * l[j] * l[k];
                     b.d_lambda[3 + i][j] = 4.0 * l[k];
                     b.d_lambda[3 + i][k] = 4.0 * l[j];
+                }
+                if self == Element::P2Bubble {
+                    b.values[6] = 27.0 * l[0] * l[1] * l[2];
+                    b.d_lambda[6] = [27.0 * l[1] * l[2], 27.0 * l[0] * l[2], 27.0 * l[0] * l[1]];
                 }
             }
         }
@@ -105,9 +145,12 @@ impl Element {
                 n.push([1.0 / 3.0; 3]);
                 n
             }
-            Element::P2 => {
+            Element::P2 | Element::P2Bubble => {
                 let mut n = v.to_vec();
                 n.extend([[0.0, 0.5, 0.5], [0.5, 0.0, 0.5], [0.5, 0.5, 0.0]]);
+                if self == Element::P2Bubble {
+                    n.push([1.0 / 3.0; 3]);
+                }
                 n
             }
         }
@@ -186,6 +229,7 @@ impl<'m> Space<'m> {
             Element::P1 => m.n_vertices(),
             Element::P1Bubble => m.n_vertices() + m.n_triangles(),
             Element::P2 => m.n_vertices() + m.n_edges(),
+            Element::P2Bubble => m.n_vertices() + m.n_edges() + m.n_triangles(),
         }
     }
 
@@ -201,10 +245,13 @@ impl<'m> Space<'m> {
                 d[..3].copy_from_slice(&v);
                 d[3] = m.n_vertices() + t;
             }
-            Element::P2 => {
+            Element::P2 | Element::P2Bubble => {
                 d[..3].copy_from_slice(&v);
                 for i in 0..3 {
                     d[3 + i] = m.n_vertices() + m.triangle_edges[t][i];
+                }
+                if self.element == Element::P2Bubble {
+                    d[6] = m.n_vertices() + m.n_edges() + t;
                 }
             }
         }
@@ -217,10 +264,10 @@ impl<'m> Space<'m> {
         let mut mask = vec![false; self.n_dofs()];
         match self.element {
             Element::P0 => {}
-            Element::P1 | Element::P1Bubble | Element::P2 => {
+            Element::P1 | Element::P1Bubble | Element::P2 | Element::P2Bubble => {
                 let vm = m.boundary_vertex_mask(tags);
                 mask[..m.n_vertices()].copy_from_slice(&vm);
-                if self.element == Element::P2 {
+                if matches!(self.element, Element::P2 | Element::P2Bubble) {
                     for (e, on) in m.boundary_edge_mask(tags).into_iter().enumerate() {
                         mask[m.n_vertices() + e] = on;
                     }
@@ -230,8 +277,8 @@ impl<'m> Space<'m> {
         mask
     }
 
-    /// Nodal interpolant of f. For P1⊕B3 the bubble amplitude makes the
-    /// centroid value exact (as FreeFEM's P1b interpolation does).
+    /// Nodal interpolant of f. For P1⊕B3 and P2⊕B3 the bubble amplitude makes
+    /// the centroid value exact (as FreeFEM's P1b interpolation does).
     pub fn interpolate(&self, f: impl Fn([f64; 2]) -> f64) -> Vec<f64> {
         let mut c = vec![0.0; self.n_dofs()];
         let nodes = self.element.nodes();
@@ -241,9 +288,19 @@ impl<'m> Space<'m> {
             for i in 0..n {
                 c[dofs[i]] = f(g.point(nodes[i]));
             }
-            if self.element == Element::P1Bubble {
-                let mean = (c[dofs[0]] + c[dofs[1]] + c[dofs[2]]) / 3.0;
-                c[dofs[3]] -= mean;
+            match self.element {
+                Element::P1Bubble => {
+                    let mean = (c[dofs[0]] + c[dofs[1]] + c[dofs[2]]) / 3.0;
+                    c[dofs[3]] -= mean;
+                }
+                Element::P2Bubble => {
+                    // The P2 basis at the centroid: −1/9 per vertex, 4/9 per edge.
+                    let rest = (4.0 * (c[dofs[3]] + c[dofs[4]] + c[dofs[5]])
+                        - (c[dofs[0]] + c[dofs[1]] + c[dofs[2]]))
+                        / 9.0;
+                    c[dofs[6]] -= rest;
+                }
+                _ => {}
             }
         }
         c
@@ -256,7 +313,7 @@ impl<'m> Space<'m> {
         (0..n).map(|i| c[dofs[i]] * b.values[i]).sum()
     }
 
-    /// Values at the mesh vertices (exact for P1, P1⊕B3, P2: their vertex dofs;
+    /// Values at the mesh vertices (exact for P1, P1⊕B3, P2, P2⊕B3: their vertex dofs;
     /// for P0 the area-weighted mean of the surrounding triangles).
     pub fn vertex_values(&self, c: &[f64]) -> Vec<f64> {
         let m = self.mesh;
@@ -309,7 +366,7 @@ mod tests {
 
     #[test]
     fn barycentric_derivatives_match_finite_differences() {
-        for e in [Element::P1Bubble, Element::P2] {
+        for e in [Element::P1Bubble, Element::P2, Element::P2Bubble] {
             let l = [0.2, 0.3, 0.5];
             let b = e.basis(l);
             let h = 1e-6;

@@ -110,6 +110,7 @@ fn sample_data(mesh: &Mesh) -> ResultData {
                 (0..nv + mesh.edges.len()).map(|i| i as f64).collect(),
             ),
         ],
+        dof_spaces: vec![("u".into(), "P1b".into())],
         write_edges: true,
         solver_attrs: vec![
             ("algorithm".into(), AttrValue::Str("uzawa".into())),
@@ -217,6 +218,7 @@ fn without_edges_and_empty_parts() {
     let data = ResultData {
         fields: vec![],
         dofs: vec![("empty".into(), vec![])],
+        dof_spaces: vec![],
         write_edges: false,
         solver_attrs: vec![],
         history: vec![("r".into(), vec![])],

@@ -7,7 +7,9 @@
 //! /mesh/triangles       u64 [Nt, 3]      zero-based, mesh order
 //! /mesh/edges           u64 [Ne, 2]      only when ResultData::write_edges
 //! /fields/<name>        f64 [N] or [N, components], attribute `location` = "vertex" | "cell"
-//! /dofs/<name>          f64 [len]
+//! /dofs/<name>          f64 [len], attribute `space` = "P1b^3", "P2b^3", "P2^2", "P0", …
+//!                       (element and number of component blocks; absent in
+//!                       files before it: readers then go by the length)
 //! /solver               group; ResultData::solver_attrs as scalar attributes
 //! /solver/history/<m>   f64 [K]          all of the same length K
 //! root attributes       scene, version ("obstacle-fem X.Y.Z"), ResultData::root_attrs
@@ -353,7 +355,11 @@ fn write_layout(file: &File, mesh: &Mesh, data: &ResultData) -> Res<()> {
 
     let g = new_group(root, "dofs")?;
     for (name, values) in &data.dofs {
-        write_f64(&g, &format!("/dofs/{name}"), name, &[values.len()], values)?;
+        let path = format!("/dofs/{name}");
+        let ds = write_f64(&g, &path, name, &[values.len()], values)?;
+        if let Some((_, space)) = data.dof_spaces.iter().find(|(n, _)| n == name) {
+            write_str_attr(&ds, &path, "space", space)?;
+        }
     }
     drop(g);
 
@@ -767,7 +773,19 @@ fn read_layout(file: &File) -> Res<ResultFile> {
     if root.link_exists("dofs") {
         let g = open_group(root, "dofs", "/dofs")?;
         for name in member_names(&g)? {
-            let v = read_vector(&g, &name, &format!("/dofs/{name}"))?;
+            let path = format!("/dofs/{name}");
+            let v = read_vector(&g, &name, &path)?;
+            let ds = open_dataset(&g, &name, &path)?;
+            if ds
+                .attr_names()
+                .is_ok_and(|a| a.iter().any(|s| s == "space"))
+            {
+                let space = read_str_attr(&ds, &path, "space")?;
+                if crate::output::parse_space_tag(&space).is_none() {
+                    return Err(format!("{path}: attribute `space` = \"{space}\" names no element (P0, P1, P1b, P2, P2b, optionally ^k)"));
+                }
+                data.dof_spaces.push((name.clone(), space));
+            }
             data.dofs.push((name, v));
         }
     }

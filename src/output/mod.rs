@@ -52,6 +52,9 @@ pub struct ResultData {
     pub fields: Vec<Field>,
     /// `/dofs/<name>`: full coefficient vectors.
     pub dofs: Vec<(String, Vec<f64>)>,
+    /// The `space` attribute of `/dofs/<name>` ([`space_tag`]); vectors
+    /// without one (older files) are told apart by their length.
+    pub dof_spaces: Vec<(String, String)>,
     /// Write `/mesh/edges` (needed when a P2 coefficient vector is stored).
     pub write_edges: bool,
     /// Attributes of the `/solver` group.
@@ -220,4 +223,23 @@ pub fn summary(file: &ResultFile) -> String {
         );
     }
     s
+}
+
+/// The `space` attribute of a `/dofs` vector: the element's tag (P0, P1,
+/// P1b, P2, P2b), with `^k` when it holds k component blocks in a row.
+pub fn space_tag(element: crate::space::Element, blocks: usize) -> String {
+    if blocks == 1 {
+        element.tag().to_string()
+    } else {
+        format!("{}^{blocks}", element.tag())
+    }
+}
+
+/// The element and number of blocks of a [`space_tag`].
+pub fn parse_space_tag(tag: &str) -> Option<(crate::space::Element, usize)> {
+    let (name, blocks) = match tag.split_once('^') {
+        Some((name, k)) => (name, k.parse::<usize>().ok().filter(|k| *k >= 1)?),
+        None => (tag, 1),
+    };
+    Some((crate::space::Element::from_tag(name)?, blocks))
 }

@@ -1,21 +1,31 @@
 //! The forms of the Cartesian Naghdi shell (SPEC §2, thesis (1.12), (2.14)) and
-//! the algebraic problem of the discrete Problem 9 without and with contact.
+//! the algebraic problem of the discrete Problem 9 without and with contact,
+//! for both shell elements ([`ShellElementKind`]):
 //!
-//! Unknowns: seven scalar P1⊕B3 fields in blocks, u1, u2, u3, r1, r2, r3 (the
-//! Cartesian displacement u and rotation r, U = (u, r)) and the tangency
-//! multiplier ψ; the global index of scalar dof d of component c is
-//! `c * n_scalar + d` with n_scalar = Nv + Nt ([`ShellLayout`]). The contact
-//! multiplier λ is P0, one per triangle.
+//! * `p1b-p0`, the thesis' element: seven scalar P1⊕B3 fields u1, u2, u3,
+//!   r1, r2, r3 (the Cartesian displacement u and rotation r) and the
+//!   tangency multiplier ψ for r·a3 = 0; P0 contact multipliers; every form
+//!   with Radon's 7-point rule (FreeFEM's `qf5pT`);
+//! * `p2-p2b-psri`, the locking-free element (docs/shell-benchmarks.md):
+//!   u1, u2, u3 in P2 and the rotation r = θ^1 a_1 + θ^2 a_2 with θ^β in
+//!   P2⊕B3 (no bubble on u: with the reduced rule each displacement bubble
+//!   carries a zero-energy mode per triangle); r is tangent by construction (no ψ, no ρ: K is symmetric positive
+//!   definite); the membrane and shear energies by partial selective reduced
+//!   integration (Arnold–Brezzi): a weight α = min(1, ε²/ℓ²) on the full
+//!   rule and 1 − α on the 3-point interior rule of degree 2; P1 contact
+//!   multipliers.
+//!
+//! The unknowns are scalar fields in blocks ([`ShellLayout`]): the global index
+//! of scalar dof d of field f is `fields[f].offset + d`.
 //!
 //! At each quadrature point the exact chart geometry ([`SurfacePoint`]) is
-//! evaluated and every local basis function (one scalar shape function placed
-//! in one component of U) is mapped to its vector of generalised strains
+//! evaluated and every local basis function (one scalar shape function in one
+//! field) is mapped to its vector of generalised strains
 //! ([`generalized_strains`]); the element matrix is K_T = Σ_q w_q Eᵀ D E with
-//! the block-diagonal weight D of [`strain_weights`]. The rule is Radon's
-//! 7-point rule (FreeFEM's default `qf5pT`), as a FreeFEM script would use.
+//! the block-diagonal weight D of [`strain_weights`].
 //!
 //! [`assemble_shell`] gives the saddle problem without contact,
-//! [`rigid_plane_constraint`] the P0 contact with the plane z = 0, and
+//! [`rigid_plane_constraint`] the contact with the plane z = 0, and
 //! [`scale_tangency_multiplier`] rebalances the ψ block for large ρ.
 
 use super::geometry::{obstacle_function, Chart, Material, SurfacePoint};
@@ -27,13 +37,13 @@ use crate::solvers::{Constraint, ContactProblem};
 use crate::space::{Element, Space, TriangleGeometry};
 use nalgebra::{Matrix2, Vector3};
 
-/// Number of components of U = (u, r).
+/// Number of components of U = (u, r) in the thesis' layout.
 pub const N_U_COMPONENTS: usize = 6;
-/// Number of scalar fields: U and ψ.
+/// Number of scalar fields of the thesis' layout: U and ψ.
 pub const N_COMPONENTS: usize = 7;
-/// Component index of the tangency multiplier ψ.
+/// Field index of the tangency multiplier ψ in the thesis' layout.
 pub const PSI: usize = 6;
-/// Names of the components, in block order.
+/// Names of the thesis' fields, in block order.
 pub const COMPONENT_NAMES: [&str; N_COMPONENTS] = ["u1", "u2", "u3", "r1", "r2", "r3", "psi"];
 
 /// Length of the generalised strain vector, ordered
@@ -48,67 +58,211 @@ pub const GRAD_NORMAL_ROTATION: usize = 8;
 /// Generalised strains at one point (order: see [`N_STRAINS`]).
 pub type StrainVector = [f64; N_STRAINS];
 
-/// Local basis functions of P1⊕B3 on one triangle.
-const N_LOCAL: usize = 4;
-/// Local U dofs on one triangle: local index `component * N_LOCAL + k`.
-const N_LOCAL_U: usize = N_U_COMPONENTS * N_LOCAL;
-
 /// The symmetric index pairs (α, β) of the strain components 11, 22, 12.
 const PAIRS: [[usize; 2]; 3] = [[0, 0], [1, 1], [0, 1]];
 
-/// Dof layout of the seven P1⊕B3 fields.
+/// The two shell discretisations (scene `element`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShellElementKind {
+    /// The thesis' element: (P1⊕B3)⁶ × P1⊕B3 (ψ), P0 contact multipliers.
+    P1bP0,
+    /// The locking-free element: P2³ displacements, (P2⊕B3)² tangent
+    /// rotation components, PSRI, P1 contact multipliers.
+    P2P2bPsri,
+}
+
+impl ShellElementKind {
+    /// The space of the contact multiplier λ.
+    pub fn multiplier_element(self) -> Element {
+        match self {
+            ShellElementKind::P1bP0 => Element::P0,
+            ShellElementKind::P2P2bPsri => Element::P1,
+        }
+    }
+}
+
+/// How one scalar field enters the shell's unknowns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FieldRole {
+    /// The Cartesian displacement component u_c (c = 0, 1, 2).
+    Displacement(usize),
+    /// The Cartesian rotation component r_c (thesis; tangency through ψ).
+    CartesianRotation(usize),
+    /// The tangent rotation component θ^β: r = θ^1 a_1 + θ^2 a_2.
+    TangentRotation(usize),
+    /// The tangency multiplier ψ of r·a3 = 0.
+    TangencyMultiplier,
+}
+
+/// One scalar field of the layout: its name, role, space and block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ShellField {
+    pub name: &'static str,
+    pub role: FieldRole,
+    pub element: Element,
+    /// First global index of the block.
+    pub offset: usize,
+    /// Number of dofs of the block.
+    pub len: usize,
+}
+
+/// Dof layout: one scalar field per block, U's fields first, ψ (if any) last.
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ShellLayout {
+    pub kind: ShellElementKind,
+    pub fields: Vec<ShellField>,
     pub n_vertices: usize,
     pub n_triangles: usize,
 }
 
 impl ShellLayout {
+    /// The thesis' layout (seven P1⊕B3 fields).
     pub fn new(mesh: &Mesh) -> Self {
+        Self::for_element(mesh, ShellElementKind::P1bP0)
+    }
+
+    pub fn for_element(mesh: &Mesh, kind: ShellElementKind) -> Self {
+        use FieldRole::*;
+        let spec: Vec<(&'static str, FieldRole, Element)> = match kind {
+            ShellElementKind::P1bP0 => COMPONENT_NAMES
+                .iter()
+                .enumerate()
+                .map(|(c, &name)| {
+                    let role = match c {
+                        0..=2 => Displacement(c),
+                        3..=5 => CartesianRotation(c - 3),
+                        _ => TangencyMultiplier,
+                    };
+                    (name, role, Element::P1Bubble)
+                })
+                .collect(),
+            ShellElementKind::P2P2bPsri => vec![
+                ("u1", Displacement(0), Element::P2),
+                ("u2", Displacement(1), Element::P2),
+                ("u3", Displacement(2), Element::P2),
+                ("theta1", TangentRotation(0), Element::P2Bubble),
+                ("theta2", TangentRotation(1), Element::P2Bubble),
+            ],
+        };
+        let mut offset = 0;
+        let fields = spec
+            .into_iter()
+            .map(|(name, role, element)| {
+                let len = Space::new(mesh, element).n_dofs();
+                let field = ShellField {
+                    name,
+                    role,
+                    element,
+                    offset,
+                    len,
+                };
+                offset += len;
+                field
+            })
+            .collect();
         ShellLayout {
+            kind,
+            fields,
             n_vertices: mesh.n_vertices(),
             n_triangles: mesh.n_triangles(),
         }
     }
 
-    /// Dofs of one scalar P1⊕B3 field: Nv vertex values, then Nt bubbles.
+    /// Dofs of one scalar P1⊕B3 field of the thesis' layout: Nv + Nt.
     pub fn n_scalar(&self) -> usize {
-        self.n_vertices + self.n_triangles
+        self.fields[0].len
     }
 
     /// All dofs of U and ψ, boundary dofs included.
     pub fn n_total(&self) -> usize {
-        N_COMPONENTS * self.n_scalar()
+        self.fields.last().map_or(0, |f| f.offset + f.len)
     }
 
-    /// Global index of scalar dof `scalar` of `component`.
+    /// Global index of scalar dof `scalar` of field `component`.
     pub fn index(&self, component: usize, scalar: usize) -> usize {
-        component * self.n_scalar() + scalar
+        self.fields[component].offset + scalar
     }
 
-    /// The coefficients of one component in a full vector.
+    /// The coefficients of one field in a full vector.
     pub fn component<'a>(&self, full: &'a [f64], component: usize) -> &'a [f64] {
-        let n = self.n_scalar();
-        &full[component * n..(component + 1) * n]
+        let f = &self.fields[component];
+        &full[f.offset..f.offset + f.len]
     }
 
-    /// The thesis' dof count (SPEC §2): U and ψ with boundary dofs, plus the
-    /// P0 contact multipliers, 7·(Nv + Nt) + Nt.
+    /// The field of ψ, if the layout has one.
+    pub fn psi(&self) -> Option<usize> {
+        self.fields
+            .iter()
+            .position(|f| f.role == FieldRole::TangencyMultiplier)
+    }
+
+    /// The field of a role.
+    pub fn field_of(&self, role: FieldRole) -> Option<usize> {
+        self.fields.iter().position(|f| f.role == role)
+    }
+
+    /// The field named `name` (u1, …, r3, psi, theta1, theta2).
+    pub fn field_named(&self, name: &str) -> Option<usize> {
+        self.fields.iter().position(|f| f.name == name)
+    }
+
+    /// The fields of U (all but ψ), in block order.
+    pub fn u_fields(&self) -> impl Iterator<Item = &ShellField> {
+        self.fields
+            .iter()
+            .filter(|f| f.role != FieldRole::TangencyMultiplier)
+    }
+
+    /// Number of contact multipliers (one per triangle or per vertex).
+    pub fn n_multipliers(&self) -> usize {
+        match self.kind.multiplier_element() {
+            Element::P0 => self.n_triangles,
+            _ => self.n_vertices,
+        }
+    }
+
+    /// The dof count with boundary dofs and the contact multipliers; for
+    /// the thesis' layout 7·(Nv + Nt) + Nt (SPEC §2).
     pub fn thesis_dof_count(&self) -> usize {
-        self.n_total() + self.n_triangles
+        self.n_total() + self.n_multipliers()
     }
 }
 
-/// The numbering of the clamped shell: u = r = ψ = 0 at the vertices of the
-/// boundary parts with tags in `clamped_tags` (all of ∂ω if None); bubbles
-/// vanish on the boundary and stay free. Free dofs keep the block order, so
-/// the free U dofs come first and the free ψ dofs last.
+/// The numbering of the clamped shell (thesis' layout): u = r = ψ = 0 at the
+/// vertices of the boundary parts with tags in `clamped_tags` (all of ∂ω if
+/// None); bubbles vanish on the boundary and stay free. Free dofs keep the
+/// block order, so the free U dofs come first and the free ψ dofs last.
 pub fn clamped_numbering(mesh: &Mesh, clamped_tags: Option<&[i32]>) -> DofNumbering {
-    let scalar = Space::new(mesh, Element::P1Bubble).boundary_dof_mask(clamped_tags);
-    let fixed: Vec<bool> = (0..N_COMPONENTS)
-        .flat_map(|_| scalar.iter().copied())
-        .collect();
+    let layout = ShellLayout::new(mesh);
+    let mut fixed = vec![false; layout.n_total()];
+    fix_fields(
+        mesh,
+        &layout,
+        clamped_tags,
+        0..layout.fields.len(),
+        &mut fixed,
+    );
     DofNumbering::from_fixed_mask(&fixed)
+}
+
+/// Marks as fixed the boundary dofs (on the parts `tags`, all of ∂ω if None)
+/// of the given fields.
+pub fn fix_fields(
+    mesh: &Mesh,
+    layout: &ShellLayout,
+    tags: Option<&[i32]>,
+    fields: impl IntoIterator<Item = usize>,
+    fixed: &mut [bool],
+) {
+    for f in fields {
+        let field = &layout.fields[f];
+        let mask = Space::new(mesh, field.element).boundary_dof_mask(tags);
+        for (d, on) in mask.into_iter().enumerate() {
+            if on {
+                fixed[field.offset + d] = true;
+            }
+        }
+    }
 }
 
 /// Generalised strains of a field U = (u, r) from its values and first
@@ -144,20 +298,34 @@ pub fn generalized_strains(
 }
 
 /// Strains of one scalar shape function (value, physical gradient) placed in
-/// `component` of U (0..3: u_c, 3..6: r_{c−3}).
-pub fn shape_strains(
+/// a field of U with `role`.
+pub fn field_strains(
     p: &SurfacePoint,
-    component: usize,
+    role: FieldRole,
     value: f64,
     grad: [f64; 2],
 ) -> StrainVector {
     let zero = Vector3::zeros();
-    let unit = Vector3::ith(component % 3, 1.0);
-    let d = [unit * grad[0], unit * grad[1]];
-    if component < 3 {
-        generalized_strains(p, &d, &zero, &[zero; 2])
-    } else {
-        generalized_strains(p, &[zero; 2], &(unit * value), &d)
+    match role {
+        FieldRole::Displacement(c) => {
+            let unit = Vector3::ith(c, 1.0);
+            generalized_strains(p, &[unit * grad[0], unit * grad[1]], &zero, &[zero; 2])
+        }
+        FieldRole::CartesianRotation(c) => {
+            let unit = Vector3::ith(c, 1.0);
+            let d = [unit * grad[0], unit * grad[1]];
+            generalized_strains(p, &[zero; 2], &(unit * value), &d)
+        }
+        FieldRole::TangentRotation(be) => {
+            // r = θ a_β: ∂_α r = ∂_α θ a_β + θ ∂_α a_β, ∂_α a_β = ∂_α∂_β φ.
+            let a_be = *p.a(be);
+            let dr = [
+                a_be * grad[0] + p.d_a[be][0] * value,
+                a_be * grad[1] + p.d_a[be][1] * value,
+            ];
+            generalized_strains(p, &[zero; 2], &(a_be * value), &dr)
+        }
+        FieldRole::TangencyMultiplier => [0.0; N_STRAINS],
     }
 }
 
@@ -219,74 +387,233 @@ pub fn strain_weights(
     d
 }
 
-/// Element matrices and load of one triangle, local U dofs ordered
-/// `component * 4 + k` (k: the three hats then the bubble).
-pub struct ShellElement {
-    /// a_ρ(φ_j, φ_i), 24 × 24.
-    pub stiffness: [[f64; N_LOCAL_U]; N_LOCAL_U],
-    /// b(φ_j, χ_k) = ∫ ∇(s_j·a3)·∇χ_k dx, 4 × 24 (rows: ψ shape functions).
-    pub tangency: [[f64; N_LOCAL_U]; N_LOCAL],
-    /// L(φ_i) = ∫ f·v_i √a dx, 24.
-    pub load: [f64; N_LOCAL_U],
+/// The factors of the strain groups of D in one integration pass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroupFactors {
+    pub membrane: f64,
+    pub bending: f64,
+    pub shear: f64,
+}
+
+/// One quadrature pass of an element: a rule, and (PSRI) factors on D's
+/// strain groups; the load and b are integrated in the pass that has `full`.
+pub struct IntegrationPass {
+    pub rule: TriangleRule,
+    pub factors: Option<GroupFactors>,
+    pub full: bool,
+}
+
+/// The partial selective reduced integration weight α = min(1, ε²/ℓ²), ℓ
+/// the diameter of ω (the diagonal of its bounding box): the fraction of the
+/// membrane and shear energies integrated exactly. FEniCS-Shells' choice
+/// (α = 1 with κ = 1/t² on a unit-size domain); Arnold–Brezzi's ε²/h_T² was
+/// measured stiffer (docs/shell-benchmarks.md: clamped plate at 16×16, −1.6 %
+/// at ε = 0.08 against −0.7 %).
+pub fn psri_weight(mesh: &Mesh, thickness: f64) -> f64 {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for v in &mesh.vertices {
+        for k in 0..2 {
+            lo[k] = lo[k].min(v[k]);
+            hi[k] = hi[k].max(v[k]);
+        }
+    }
+    let diameter = (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
+    (thickness * thickness / (diameter * diameter)).min(1.0)
+}
+
+/// The quadrature passes of the layout's element: one pass of Radon's rule
+/// (thesis), or the PSRI pair with α = [`psri_weight`] (full rule: bending
+/// and α (membrane + shear); the interior 3-point rule of degree 2:
+/// (1 − α)(membrane + shear)).
+pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPass> {
+    match layout.kind {
+        ShellElementKind::P1bP0 => vec![IntegrationPass {
+            rule: TriangleRule::exact_for(5),
+            factors: None,
+            full: true,
+        }],
+        ShellElementKind::P2P2bPsri => {
+            vec![
+                IntegrationPass {
+                    rule: TriangleRule::exact_for(5),
+                    factors: Some(GroupFactors {
+                        membrane: alpha,
+                        bending: 1.0,
+                        shear: alpha,
+                    }),
+                    full: true,
+                },
+                IntegrationPass {
+                    rule: TriangleRule::exact_for(2),
+                    factors: Some(GroupFactors {
+                        membrane: 1.0 - alpha,
+                        bending: 0.0,
+                        shear: 1.0 - alpha,
+                    }),
+                    full: false,
+                },
+            ]
+        }
+    }
+}
+
+/// Element matrices and load of one triangle. Local U dofs: the fields of U
+/// in block order, each with its element's local basis (thesis:
+/// `component * 4 + k`, k the three hats then the bubble).
+pub struct ElementMatrices {
+    /// Number of local U dofs.
+    pub n_u: usize,
+    /// a_ρ(φ_j, φ_i), n_u × n_u row-major.
+    pub stiffness: Vec<f64>,
+    /// b(φ_j, χ_k) = ∫ ∇(s_j·a3)·∇χ_k dx, rows: ψ shape functions (thesis only).
+    pub tangency: Vec<Vec<f64>>,
+    /// L(φ_i) = ∫ f·v_i √a dx.
+    pub load: Vec<f64>,
 }
 
 /// The element matrices of a_ρ, b and L on triangle t.
-pub fn shell_element(
+#[allow(clippy::too_many_arguments)]
+pub fn element_matrices(
     mesh: &Mesh,
+    layout: &ShellLayout,
+    passes: &[IntegrationPass],
     t: usize,
-    rule: &TriangleRule,
     chart: &Chart,
     material: &Material,
     rho: f64,
     load: [f64; 3],
-) -> ShellElement {
+) -> ElementMatrices {
     let g = TriangleGeometry::new(mesh, t);
-    let mut el = ShellElement {
-        stiffness: [[0.0; N_LOCAL_U]; N_LOCAL_U],
-        tangency: [[0.0; N_LOCAL_U]; N_LOCAL],
-        load: [0.0; N_LOCAL_U],
+    let u_fields: Vec<&ShellField> = layout.u_fields().collect();
+    let n_u: usize = u_fields.iter().map(|f| f.element.n_local()).sum();
+    let psi_element = layout.psi().map(|f| layout.fields[f].element);
+    let n_psi = psi_element.map_or(0, |e| e.n_local());
+    let mut el = ElementMatrices {
+        n_u,
+        stiffness: vec![0.0; n_u * n_u],
+        tangency: vec![vec![0.0; n_u]; n_psi],
+        load: vec![0.0; n_u],
     };
-    for q in quad_points(&g, t, rule) {
-        let p = chart.at(q.x);
-        let d = strain_weights(&p, material, rho);
-        let basis = Element::P1Bubble.basis(q.lambda);
-        let grads: [[f64; 2]; N_LOCAL] = std::array::from_fn(|k| g.gradient(basis.d_lambda[k]));
-        // E: strains of every local U basis function; DE = D·E.
-        let mut e = [[0.0; N_STRAINS]; N_LOCAL_U];
-        for c in 0..N_U_COMPONENTS {
-            for k in 0..N_LOCAL {
-                e[c * N_LOCAL + k] = shape_strains(&p, c, basis.values[k], grads[k]);
+    let mut e = vec![[0.0; N_STRAINS]; n_u];
+    for pass in passes {
+        for q in quad_points(&g, t, &pass.rule) {
+            let p = chart.at(q.x);
+            let mut d = strain_weights(&p, material, rho);
+            if let Some(f) = pass.factors {
+                scale_strain_groups(&mut d, f);
             }
-        }
-        let de: Vec<StrainVector> = e
-            .iter()
-            .map(|ej| std::array::from_fn(|a| (0..N_STRAINS).map(|b| d[a][b] * ej[b]).sum()))
-            .collect();
-        for i in 0..N_LOCAL_U {
-            for j in 0..N_LOCAL_U {
-                let s: f64 = (0..N_STRAINS).map(|a| e[i][a] * de[j][a]).sum();
-                el.stiffness[i][j] += q.weight * s;
+            // E: strains of every local U basis function; DE = D·E.
+            let mut i = 0;
+            for field in &u_fields {
+                let basis = field.element.basis(q.lambda);
+                for k in 0..basis.n {
+                    let grad = g.gradient(basis.d_lambda[k]);
+                    e[i] = field_strains(&p, field.role, basis.values[k], grad);
+                    if pass.full {
+                        if let FieldRole::Displacement(c) = field.role {
+                            el.load[i] += q.weight * load[c] * basis.values[k] * p.sqrt_a;
+                        }
+                    }
+                    i += 1;
+                }
             }
-        }
-        // b: ∇(s·a3)·∇χ, the last two strains against the ψ shape gradients.
-        for k in 0..N_LOCAL {
-            for j in 0..N_LOCAL_U {
-                let gn = &e[j][GRAD_NORMAL_ROTATION..];
-                el.tangency[k][j] += q.weight * (gn[0] * grads[k][0] + gn[1] * grads[k][1]);
+            let de: Vec<StrainVector> = e
+                .iter()
+                .map(|ej| std::array::from_fn(|a| (0..N_STRAINS).map(|b| d[a][b] * ej[b]).sum()))
+                .collect();
+            for i in 0..n_u {
+                for j in 0..n_u {
+                    let s: f64 = (0..N_STRAINS).map(|a| e[i][a] * de[j][a]).sum();
+                    el.stiffness[i * n_u + j] += q.weight * s;
+                }
             }
-        }
-        // L: f·v √a for the displacement components.
-        for c in 0..3 {
-            for k in 0..N_LOCAL {
-                el.load[c * N_LOCAL + k] += q.weight * load[c] * basis.values[k] * p.sqrt_a;
+            // b: ∇(s·a3)·∇χ, the last two strains against the ψ shape gradients.
+            if let (Some(psi), true) = (psi_element, pass.full) {
+                let basis = psi.basis(q.lambda);
+                for k in 0..n_psi {
+                    let grad = g.gradient(basis.d_lambda[k]);
+                    for j in 0..n_u {
+                        let gn = &e[j][GRAD_NORMAL_ROTATION..];
+                        el.tangency[k][j] += q.weight * (gn[0] * grad[0] + gn[1] * grad[1]);
+                    }
+                }
             }
         }
     }
     el
 }
 
-/// The full (unclamped) saddle matrix [[K_ρ, Bᵀ], [B, 0]] over all 7·n_scalar
-/// dofs, and the full load vector (zero in the ψ block).
+/// Scales the membrane, bending and shear blocks of D (PSRI passes).
+fn scale_strain_groups(d: &mut [[f64; N_STRAINS]; N_STRAINS], f: GroupFactors) {
+    for (start, len, factor) in [
+        (GAMMA, 3, f.membrane),
+        (CHI, 3, f.bending),
+        (DELTA, 2, f.shear),
+    ] {
+        for row in d.iter_mut().skip(start).take(len) {
+            for v in row.iter_mut() {
+                *v *= factor;
+            }
+        }
+    }
+}
+
+/// The global indices of the local U dofs (and of ψ's) of triangle t.
+fn element_globals(mesh: &Mesh, layout: &ShellLayout, t: usize) -> (Vec<usize>, Vec<usize>) {
+    let mut u = Vec::new();
+    let mut psi = Vec::new();
+    for field in &layout.fields {
+        let (dofs, n) = Space::new(mesh, field.element).element_dofs(t);
+        let target = if field.role == FieldRole::TangencyMultiplier {
+            &mut psi
+        } else {
+            &mut u
+        };
+        target.extend(dofs[..n].iter().map(|d| field.offset + d));
+    }
+    (u, psi)
+}
+
+/// The full (unclamped) matrix over all dofs of the layout — the saddle
+/// matrix [[K_ρ, Bᵀ], [B, 0]] with ψ, K alone without — and the full load
+/// vector (zero in the ψ block).
+pub fn assemble_shell_layout(
+    mesh: &Mesh,
+    layout: &ShellLayout,
+    chart: &Chart,
+    material: &Material,
+    rho: f64,
+    load: [f64; 3],
+) -> (Triplets, Vec<f64>) {
+    let n = layout.n_total();
+    let mut a = Triplets::new(n, n);
+    let mut f = vec![0.0; n];
+    let passes = integration_passes(layout, psri_weight(mesh, material.thickness));
+    for t in 0..mesh.n_triangles() {
+        let el = element_matrices(mesh, layout, &passes, t, chart, material, rho, load);
+        let (u, psi) = element_globals(mesh, layout, t);
+        if t == 0 {
+            a.entries
+                .reserve(mesh.n_triangles() * (u.len() * u.len() + 2 * psi.len() * u.len()));
+        }
+        for i in 0..el.n_u {
+            f[u[i]] += el.load[i];
+            for j in 0..el.n_u {
+                a.entries.push((u[i], u[j], el.stiffness[i * el.n_u + j]));
+            }
+        }
+        for (k, &row) in psi.iter().enumerate() {
+            for j in 0..el.n_u {
+                let v = el.tangency[k][j];
+                a.entries.push((row, u[j], v));
+                a.entries.push((u[j], row, v));
+            }
+        }
+    }
+    (a, f)
+}
+
+/// The thesis' full saddle matrix and load (see [`assemble_shell_layout`]).
 pub fn assemble_shell_full(
     mesh: &Mesh,
     chart: &Chart,
@@ -294,34 +621,7 @@ pub fn assemble_shell_full(
     rho: f64,
     load: [f64; 3],
 ) -> (Triplets, Vec<f64>) {
-    let layout = ShellLayout::new(mesh);
-    let space = Space::new(mesh, Element::P1Bubble);
-    let rule = TriangleRule::exact_for(5);
-    let n = layout.n_total();
-    let mut a = Triplets::new(n, n);
-    a.entries
-        .reserve(mesh.n_triangles() * (N_LOCAL_U * N_LOCAL_U + 2 * N_LOCAL * N_LOCAL_U));
-    let mut f = vec![0.0; n];
-    for t in 0..mesh.n_triangles() {
-        let el = shell_element(mesh, t, &rule, chart, material, rho, load);
-        let (scalar, _) = space.element_dofs(t);
-        let global = |local: usize| layout.index(local / N_LOCAL, scalar[local % N_LOCAL]);
-        for i in 0..N_LOCAL_U {
-            f[global(i)] += el.load[i];
-            for j in 0..N_LOCAL_U {
-                a.entries.push((global(i), global(j), el.stiffness[i][j]));
-            }
-        }
-        for k in 0..N_LOCAL {
-            let row = layout.index(PSI, scalar[k]);
-            for j in 0..N_LOCAL_U {
-                let v = el.tangency[k][j];
-                a.entries.push((row, global(j), v));
-                a.entries.push((global(j), row, v));
-            }
-        }
-    }
-    (a, f)
+    assemble_shell_layout(mesh, &ShellLayout::new(mesh), chart, material, rho, load)
 }
 
 /// The shell without contact: the saddle matrix [[K_ρ, Bᵀ], [B, 0]] over the
@@ -337,25 +637,27 @@ pub fn assemble_shell(
 ) -> (ContactProblem, DofNumbering) {
     let numbering = clamped_numbering(mesh, clamped_tags);
     let (a_full, f_full) = assemble_shell_full(mesh, chart, material, rho, load);
-    let problem = restrict_shell(mesh, a_full, &f_full, &numbering);
+    let problem = restrict_shell(&ShellLayout::new(mesh), a_full, &f_full, &numbering);
     (problem, numbering)
 }
 
-/// The shell problem over the free dofs of `numbering` (homogeneous clamping:
-/// fixed dofs are zero, so no lifting): A restricted, F restricted,
-/// n_primal = number of free U dofs (they come first in block order). With
-/// ψ the matrix is a symmetric saddle-point matrix; without (the plate
-/// reduction eliminated it) K is symmetric positive definite.
+/// The shell problem over the free dofs of `numbering` (homogeneous
+/// conditions: fixed dofs are zero, so no lifting): A restricted, F
+/// restricted, n_primal = number of free U dofs (they come first in block
+/// order). With ψ the matrix is a symmetric saddle-point matrix; without
+/// (the tangent-rotation element, or the plate reduction that eliminated it)
+/// K is symmetric positive definite.
 pub fn restrict_shell(
-    mesh: &Mesh,
+    layout: &ShellLayout,
     a_full: Triplets,
     f_full: &[f64],
     numbering: &DofNumbering,
 ) -> ContactProblem {
-    let layout = ShellLayout::new(mesh);
     let zeros = vec![0.0; layout.n_total()];
     let (a, _) = eliminate(a_full, numbering, numbering, &zeros);
-    let psi_start = layout.index(PSI, 0);
+    let psi_start = layout
+        .psi()
+        .map_or(layout.n_total(), |f| layout.fields[f].offset);
     let n_primal = numbering
         .free_dofs
         .iter()
@@ -375,21 +677,47 @@ pub fn restrict_shell(
     }
 }
 
+/// The dofs of a field on one boundary edge and their basis functions at
+/// the edge parameter s ∈ [0, 1]: the two vertex hats (P1⊕B3: the bubble
+/// vanishes on the edge), or the quadratic Lagrange functions at the two
+/// vertices and the midpoint (P2, P2⊕B3).
+fn edge_basis(
+    element: Element,
+    vertices: [usize; 2],
+    midpoint: Option<usize>,
+    s: f64,
+) -> Vec<(usize, f64)> {
+    match (element, midpoint) {
+        (Element::P2 | Element::P2Bubble, Some(m)) => vec![
+            (vertices[0], (1.0 - s) * (1.0 - 2.0 * s)),
+            (vertices[1], s * (2.0 * s - 1.0)),
+            (m, 4.0 * s * (1.0 - s)),
+        ],
+        _ => vec![(vertices[0], 1.0 - s), (vertices[1], s)],
+    }
+}
+
 /// Adds the edge loads ∫_γ1 (N·v + M·s) ℓ dσ to a full load vector, on the
 /// boundary edges with tag `tag`; ℓ = |a_α ς^α| is the chart's length element
-/// along the edge (ς the unit tangent in ω). On an edge the bubble vanishes
-/// and the hats are linear; ℓ is not polynomial, so a 5-point Gauss rule.
+/// along the edge (ς the unit tangent in ω). With tangent rotations s =
+/// θ^β a_β, the moment acts on θ^β through M·a_β. ℓ is not polynomial, so a
+/// 5-point Gauss rule.
 pub fn add_edge_load(
     mesh: &Mesh,
+    layout: &ShellLayout,
     chart: &Chart,
     tag: i32,
     traction: [f64; 3],
     moment: [f64; 3],
     f_full: &mut [f64],
 ) {
-    let layout = ShellLayout::new(mesh);
     let rule = SegmentRule::exact_for(9);
+    let edges = mesh.edge_lookup();
     for edge in mesh.boundary_edges.iter().filter(|e| e.tag == tag) {
+        let [a, b] = edge.vertices;
+        let midpoint = edges
+            .get(&[a.min(b), a.max(b)])
+            .map(|e| mesh.n_vertices() + e);
         let [p, q] = edge.vertices.map(|v| mesh.vertices[v]);
         let d = [q[0] - p[0], q[1] - p[1]];
         let length = d[0].hypot(d[1]);
@@ -397,12 +725,19 @@ pub fn add_edge_load(
             let x = [p[0] + s * d[0], p[1] + s * d[1]];
             let sp = chart.at(x);
             let ell = (sp.a1 * (d[0] / length) + sp.a2 * (d[1] / length)).norm();
-            for (k, hat) in [(0, 1.0 - s), (1, s)] {
-                let v = edge.vertices[k];
-                for c in 0..3 {
-                    let weight = w * length * ell * hat;
-                    f_full[layout.index(c, v)] += weight * traction[c];
-                    f_full[layout.index(3 + c, v)] += weight * moment[c];
+            let moment = Vector3::from(moment);
+            for element in [Element::P1Bubble, Element::P2, Element::P2Bubble] {
+                for (dof, value) in edge_basis(element, edge.vertices, midpoint, s) {
+                    let weight = w * length * ell * value;
+                    for field in layout.u_fields().filter(|f| f.element == element) {
+                        let density = match field.role {
+                            FieldRole::Displacement(c) => traction[c],
+                            FieldRole::CartesianRotation(c) => moment[c],
+                            FieldRole::TangentRotation(be) => moment.dot(sp.a(be)),
+                            FieldRole::TangencyMultiplier => 0.0,
+                        };
+                        f_full[field.offset + dof] += weight * density;
+                    }
                 }
             }
         }
@@ -501,6 +836,7 @@ pub fn plane_constraint(
         let g = TriangleGeometry::new(mesh, t);
         let (scalar, _) = space.element_dofs(t);
         // ∫_T φ_k dx for the four shape functions (|T|/3 and 9|T|/20).
+        const N_LOCAL: usize = 4;
         let mut integrals = [0.0; N_LOCAL];
         for q in quad_points(&g, t, &rule) {
             let b = Element::P1Bubble.basis(q.lambda);
@@ -521,6 +857,86 @@ pub fn plane_constraint(
         weights.push(g.area);
     }
     let rows = DofNumbering::all_free(mesh.n_triangles());
+    let zeros = vec![0.0; layout.n_total()];
+    let (c, _) = eliminate(c_full, &rows, numbering, &zeros);
+    Constraint {
+        matrix: c.into_sparse(),
+        obstacle,
+        weights,
+    }
+}
+
+/// The contact of the tangent-rotation element with the plane z = level,
+/// with P1 multipliers (one per vertex, as the membrane's P2–P1 pair):
+/// C row i = ∫ (v − ε/2 s)·e3 μ_i dx over the free dofs of `numbering`, with
+/// s·e3 = θ^β a_β·e3; g_i = ∫ Φ μ_i dx with Φ = (ε/2 a3 − φ)·e3 + level at
+/// the quadrature points; weights w_i = ∫ μ_i dx (the lumped P1 mass, whose
+/// Riesz map makes the dual projection a nodal max). The mean gap is
+/// ḡ_i = (CU − g)_i / w_i. Radon's 7-point rule (no √a, as the thesis' C).
+pub fn nodal_plane_constraint(
+    mesh: &Mesh,
+    layout: &ShellLayout,
+    chart: &Chart,
+    material: &Material,
+    level: f64,
+    numbering: &DofNumbering,
+) -> Constraint {
+    let rule = TriangleRule::exact_for(5);
+    let half_eps = 0.5 * material.thickness;
+    let nv = mesh.n_vertices();
+    let mut c_full = Triplets::new(nv, layout.n_total());
+    let mut obstacle = vec![0.0; nv];
+    let mut weights = vec![0.0; nv];
+    // The fields that enter (u − ε/2 r)·e3.
+    let terms: Vec<&ShellField> = layout
+        .u_fields()
+        .filter(|f| {
+            matches!(
+                f.role,
+                FieldRole::Displacement(2)
+                    | FieldRole::TangentRotation(_)
+                    | FieldRole::CartesianRotation(2)
+            )
+        })
+        .collect();
+    for t in 0..mesh.n_triangles() {
+        let g = TriangleGeometry::new(mesh, t);
+        let tri = mesh.triangles[t];
+        for field in &terms {
+            let (dofs, n) = Space::new(mesh, field.element).element_dofs(t);
+            let mut local = [[0.0; crate::space::MAX_LOCAL]; 3];
+            for q in quad_points(&g, t, &rule) {
+                let p = chart.at(q.x);
+                let factor = match field.role {
+                    FieldRole::Displacement(_) => 1.0,
+                    FieldRole::CartesianRotation(_) => -half_eps,
+                    FieldRole::TangentRotation(be) => -half_eps * p.a(be).z,
+                    FieldRole::TangencyMultiplier => 0.0,
+                };
+                let b = field.element.basis(q.lambda);
+                for (i, row) in local.iter_mut().enumerate() {
+                    for k in 0..n {
+                        row[k] += q.weight * q.lambda[i] * factor * b.values[k];
+                    }
+                }
+            }
+            for (i, row) in local.iter().enumerate() {
+                for k in 0..n {
+                    c_full
+                        .entries
+                        .push((tri[i], field.offset + dofs[k], row[k]));
+                }
+            }
+        }
+        for q in quad_points(&g, t, &rule) {
+            let phi = obstacle_function(&chart.at(q.x), material.thickness) + level;
+            for i in 0..3 {
+                obstacle[tri[i]] += q.weight * phi * q.lambda[i];
+                weights[tri[i]] += q.weight * q.lambda[i];
+            }
+        }
+    }
+    let rows = DofNumbering::all_free(nv);
     let zeros = vec![0.0; layout.n_total()];
     let (c, _) = eliminate(c_full, &rows, numbering, &zeros);
     Constraint {
@@ -618,7 +1034,7 @@ mod tests {
     /// The element stiffness is symmetric and positive semi-definite, and
     /// the assembled load is ∫ f √a dx per displacement component.
     #[test]
-    fn element_matrices() {
+    fn element_matrices_symmetric_with_load() {
         let mesh = Mesh::from_parts(
             vec![[0.0, 0.0], [3.0, 0.5], [1.0, 2.0]],
             vec![[0, 1, 2]],
@@ -629,31 +1045,40 @@ mod tests {
             Default::default(),
         )
         .unwrap();
-        let rule = TriangleRule::exact_for(5);
-        let el = shell_element(
-            &mesh,
-            0,
-            &rule,
-            &hypar(),
-            &material(),
-            1e3,
-            [0.0, 0.0, -0.25],
-        );
-        let scale = el
-            .stiffness
-            .iter()
-            .flatten()
-            .fold(0.0f64, |m, v| m.max(v.abs()));
-        for i in 0..N_LOCAL_U {
-            for j in 0..N_LOCAL_U {
-                assert!((el.stiffness[i][j] - el.stiffness[j][i]).abs() < 1e-13 * scale);
+        // Both elements; ∫ of the u3 basis is |T| + 9|T|/20 (P1⊕B3) or |T| (P2).
+        for (kind, mass) in [
+            (ShellElementKind::P1bP0, 1.45),
+            (ShellElementKind::P2P2bPsri, 1.0),
+        ] {
+            let layout = ShellLayout::for_element(&mesh, kind);
+            let passes = integration_passes(&layout, psri_weight(&mesh, 0.8));
+            let el = element_matrices(
+                &mesh,
+                &layout,
+                &passes,
+                0,
+                &hypar(),
+                &material(),
+                1e3,
+                [0.0, 0.0, -0.25],
+            );
+            let n = el.n_u;
+            let scale = el.stiffness.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for i in 0..n {
+                for j in 0..n {
+                    let (a, b) = (el.stiffness[i * n + j], el.stiffness[j * n + i]);
+                    assert!((a - b).abs() < 1e-13 * scale, "{kind:?}");
+                }
+                assert!(el.stiffness[i * n + i] >= 0.0);
             }
-            assert!(el.stiffness[i][i] >= 0.0);
+            let total: f64 = el.load.iter().sum();
+            // √a ≈ 1 for this flat hypar.
+            let area = mesh.area(0);
+            assert!(
+                (total / (-0.25 * area * mass) - 1.0).abs() < 1e-3,
+                "{kind:?}"
+            );
         }
-        let total: f64 = el.load.iter().sum();
-        // √a ≈ 1 for this flat hypar: ∫ f3 ≈ −0.25 (|T| + 9|T|/20).
-        let area = mesh.area(0);
-        assert!((total / (-0.25 * area * 1.45) - 1.0).abs() < 1e-3);
     }
 
     /// The assembled (unclamped) K_ρ annihilates rigid motions that P1⊕B3

@@ -1,48 +1,55 @@
-//! The Naghdi shell as a model of the pipeline (SPEC §2, thesis Problem 9):
-//! [`NaghdiSystem::setup`] checks the chart and the obstacle on the mesh and
-//! numbers the clamped dofs; `assemble` builds exactly the effects the scene
+//! The Naghdi shell as a model of the pipeline (SPEC §2, thesis Problem 9),
+//! with either shell element (`p1b-p0`, `p2-p2b-psri`: forms.rs):
+//! [`NaghdiSystem::setup`] checks the chart and the obstacle on the mesh,
+//! resolves the boundary conditions per part and component and numbers the
+//! fixed dofs; `assemble` builds exactly the effects the scene
 //! declares (body force, edge loads, tangency, contact); `results` turns the
 //! solver's answer into the fields of SPEC §5.
 //!
 //! Two reductions keep the algebra to what the scene needs:
 //! * no obstacle: no λ block at all, the pipeline does one linear solve;
-//! * a flat chart (`plate`): a3 = e3 everywhere, so the tangency r·a3 = 0 is
+//! * a flat chart (`plate`) with the thesis element: a3 = e3 everywhere, so the tangency r·a3 = 0 is
 //!   r3 = 0 and is imposed by eliminating r3; ψ and the ρ term (which vanishes
 //!   on r3 = 0) disappear and K is symmetric positive definite (Cholesky).
 
 use super::forms::{
-    add_edge_load, assemble_shell_full, balanced_tangency_scale, clamped_numbering,
-    obstacle_at_vertices, plane_constraint, restrict_shell, scale_tangency_multiplier, ShellLayout,
-    N_COMPONENTS, PSI,
+    add_edge_load, assemble_shell_layout, balanced_tangency_scale, fix_fields,
+    nodal_plane_constraint, obstacle_at_vertices, plane_constraint, restrict_shell,
+    scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
 };
-use super::geometry::{Chart, Material};
+use super::geometry::{obstacle_function, Chart, Material};
 use crate::assembly::{quad_points, DofNumbering};
 use crate::error::{Error, Result};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::{contact_fields, named_boundary_tags, vertex_field, ModelSystem};
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::quadrature::TriangleRule;
-use crate::scene::{Scene, ShellSpec};
+use crate::scene::{BoundaryCondition, BoundarySpec, ElementPair, Scene, ShellSpec};
 use crate::solvers::uzawa::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
+use nalgebra::Vector3;
 use std::cell::Cell;
-
-/// Components of r (rotation) in the block layout.
-const R3: usize = 5;
 
 pub struct NaghdiSystem<'m> {
     pub mesh: &'m Mesh,
     pub chart: Chart,
     pub material: Material,
+    /// The penalty ρ of a_ρ (thesis element; 0 for tangent rotations).
     pub rho: f64,
     pub layout: ShellLayout,
     pub numbering: DofNumbering,
-    /// Flat chart: r3 eliminated, no ψ (see the module documentation).
+    /// Flat chart with the thesis element: r3 eliminated, no ψ (see the
+    /// module documentation).
     pub plate_reduction: bool,
-    /// Φ_h at the vertices, with the plane's level added (obstacle scenes).
+    /// The body force f and the edge loads (tag, N, M), resolved once.
+    body_force: [f64; 3],
+    edge_loads: Vec<(i32, [f64; 3], [f64; 3])>,
+    /// The rigid plane's level (obstacle scenes).
+    pub level: Option<f64>,
+    /// Φ at the vertices, with the plane's level added (obstacle scenes).
     pub phi: Option<Vec<f64>>,
-    /// Vertices where Φ_h > 0 (the unloaded shell is below the plane).
+    /// Vertices where Φ > 0 (the unloaded shell is below the plane).
     pub phi_positive_vertices: usize,
     /// The scale σ of ψ' = ψ/σ in the algebraic problem (1 without ψ);
     /// set by `assemble`.
@@ -51,47 +58,251 @@ pub struct NaghdiSystem<'m> {
     pub simulated: Vec<String>,
 }
 
+/// The boundary conditions of a scene, resolved to tags: `shell.clamped`
+/// (default: all of ∂ω when no `[[shell.boundary]]` is given) and each
+/// `[[shell.boundary]]`.
+fn resolved_conditions(
+    mesh: &Mesh,
+    scene: &Scene,
+    shell: &ShellSpec,
+) -> Result<Vec<(Option<Vec<i32>>, BoundarySpec)>> {
+    let mut out = Vec::new();
+    let clamped = |part: &str| BoundarySpec {
+        part: part.into(),
+        condition: BoundaryCondition::Clamped,
+        normal: None,
+        fix: None,
+    };
+    match &shell.clamped {
+        None if shell.boundary.is_empty() => out.push((None, clamped("(all of the boundary)"))),
+        None => {}
+        Some(names) => {
+            let tags = named_boundary_tags(mesh, scene, "shell.clamped", Some(names))?;
+            for (tag, name) in tags.into_iter().flatten().zip(names) {
+                out.push((Some(vec![tag]), clamped(name)));
+            }
+        }
+    }
+    for (i, b) in shell.boundary.iter().enumerate() {
+        let tags = named_boundary_tags(
+            mesh,
+            scene,
+            &format!("shell.boundary[{i}].part"),
+            Some(std::slice::from_ref(&b.part)),
+        )?;
+        out.push((tags, b.clone()));
+    }
+    Ok(out)
+}
+
+/// The fixed-dof mask of the boundary conditions (docs/shell-benchmarks.md):
+/// clamped: u = r = 0 (and ψ = 0 with the thesis element); simply
+/// supported: u = 0; diaphragm with normal e_n: u_c = 0 for c ≠ n; symmetry
+/// with normal e_n: u_n = 0 and r·e_n = 0 (r_n = 0, or with tangent rotations
+/// the θ^β whose a_β leaves the plane, node by node); fixed: the named fields.
+fn fixed_mask(
+    mesh: &Mesh,
+    scene: &Scene,
+    layout: &ShellLayout,
+    chart: &Chart,
+    conditions: &[(Option<Vec<i32>>, BoundarySpec)],
+) -> Result<Vec<bool>> {
+    let mut fixed = vec![false; layout.n_total()];
+    let field_of = |role| layout.field_of(role);
+    for (tags, b) in conditions {
+        let tags = tags.as_deref();
+        let n = b.normal.map(|a| a.index());
+        let fields: Vec<usize> = match b.condition {
+            BoundaryCondition::Clamped => (0..layout.fields.len()).collect(),
+            BoundaryCondition::SimplySupported => (0..3)
+                .filter_map(|c| field_of(FieldRole::Displacement(c)))
+                .collect(),
+            BoundaryCondition::Diaphragm => (0..3)
+                .filter(|&c| Some(c) != n)
+                .filter_map(|c| field_of(FieldRole::Displacement(c)))
+                .collect(),
+            BoundaryCondition::Symmetry => {
+                let n = n.expect("validated: symmetry has a normal");
+                let mut f = vec![field_of(FieldRole::Displacement(n)).expect("u fields")];
+                if let Some(r) = field_of(FieldRole::CartesianRotation(n)) {
+                    f.push(r);
+                } else {
+                    fix_tangent_symmetry(mesh, scene, layout, chart, tags, n, &b.part, &mut fixed)?;
+                }
+                f
+            }
+            BoundaryCondition::Free => Vec::new(),
+            BoundaryCondition::Fixed => {
+                let names = b.fix.as_deref().unwrap_or_default();
+                names
+                    .iter()
+                    .map(|name| {
+                        layout.field_named(name).ok_or_else(|| Error::Scene {
+                            file: scene.source.clone(),
+                            field: "shell.boundary.fix".into(),
+                            reason: format!(
+                                "part `{}`: `{name}` is no field of element {}: {}",
+                                b.part,
+                                scene.element.name(),
+                                layout
+                                    .fields
+                                    .iter()
+                                    .map(|f| f.name)
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            ),
+                        })
+                    })
+                    .collect::<Result<_>>()?
+            }
+        };
+        // Clamping fixes ψ too (the thesis' ψ ∈ H¹₀(γ0)); no other condition does.
+        fix_fields(mesh, layout, tags, fields, &mut fixed);
+    }
+    // ψ is determined up to a constant where no clamped part fixes it
+    // (b(U, 1) = 0): pin one boundary value (docs/shell-benchmarks.md).
+    if let Some(psi) = layout.psi() {
+        let f = &layout.fields[psi];
+        if !fixed[f.offset..f.offset + f.len].iter().any(|x| *x) {
+            let v = mesh
+                .boundary_vertex_mask(None)
+                .iter()
+                .position(|b| *b)
+                .unwrap_or(0);
+            fixed[f.offset + v] = true;
+        }
+    }
+    Ok(fixed)
+}
+
+/// r·e_n = θ^1 a_1·e_n + θ^2 a_2·e_n = 0 on a symmetry plane, at every
+/// boundary node of the part: where a_β' lies in the plane (a_β'·e_n = 0) it
+/// is θ^β = 0 for the other β; a chart whose two tangents both leave the
+/// plane there cannot state it by elimination, and is refused.
+#[allow(clippy::too_many_arguments)]
+fn fix_tangent_symmetry(
+    mesh: &Mesh,
+    scene: &Scene,
+    layout: &ShellLayout,
+    chart: &Chart,
+    tags: Option<&[i32]>,
+    n: usize,
+    part: &str,
+    fixed: &mut [bool],
+) -> Result<()> {
+    for be in 0..2 {
+        let Some(f) = layout.field_of(FieldRole::TangentRotation(be)) else {
+            continue;
+        };
+        let field = layout.fields[f];
+        let mask = Space::new(mesh, field.element).boundary_dof_mask(tags);
+        for (d, on) in mask.into_iter().enumerate() {
+            if !on {
+                continue;
+            }
+            let x = dof_point(mesh, field.element, d);
+            let p = chart.at(x);
+            let along = |b: usize| p.a(b)[n].abs() <= 1e-12 * p.a(b).norm();
+            let other = 1 - be;
+            if along(be) {
+                continue; // a_β in the plane: θ^β is free.
+            }
+            if !along(other) {
+                return Err(Error::Scene {
+                    file: scene.source.clone(),
+                    field: "shell.boundary.normal".into(),
+                    reason: format!(
+                        "part `{part}`: at ({:.6}, {:.6}) neither tangent a_1 nor a_2 of the {} chart lies in the symmetry plane (normal e{}), so r·e{} = 0 is no condition on one rotation component",
+                        x[0], x[1], chart.kind(), n + 1, n + 1
+                    ),
+                });
+            }
+            fixed[field.offset + d] = true;
+        }
+    }
+    Ok(())
+}
+
+/// The point of a vertex or edge-midpoint dof (boundary dofs of P1, P2).
+fn dof_point(mesh: &Mesh, element: Element, d: usize) -> [f64; 2] {
+    let nv = mesh.n_vertices();
+    if d < nv || !matches!(element, Element::P2 | Element::P2Bubble) {
+        mesh.vertices[d.min(nv - 1)]
+    } else {
+        let [a, b] = mesh.edges[d - nv];
+        let (p, q) = (mesh.vertices[a], mesh.vertices[b]);
+        [0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1])]
+    }
+}
+
 impl<'m> NaghdiSystem<'m> {
-    /// Checks the chart on the mesh, numbers the clamped dofs, and checks
+    /// Checks the chart on the mesh, numbers the fixed dofs, and checks
     /// the obstacle: the clamped boundary must not lie below the plane.
     pub fn setup(mesh: &'m Mesh, scene: &Scene) -> Result<Self> {
         let shell: &ShellSpec = scene.shell.as_ref().expect("validated: naghdi has [shell]");
         let chart = shell.chart;
         check_chart_regular(mesh, scene, &chart)?;
         let material = shell.material();
-        let clamped = named_boundary_tags(mesh, scene, "shell.clamped", shell.clamped.as_deref())?;
-        let plate_reduction = matches!(chart, Chart::Plate { .. });
-        let layout = ShellLayout::new(mesh);
-        let mut numbering = clamped_numbering(mesh, clamped.as_deref());
+        let kind = match scene.element {
+            ElementPair::P2P2bPsri => ShellElementKind::P2P2bPsri,
+            _ => ShellElementKind::P1bP0,
+        };
+        let layout = ShellLayout::for_element(mesh, kind);
+        let conditions = resolved_conditions(mesh, scene, shell)?;
+        let mut fixed = fixed_mask(mesh, scene, &layout, &chart, &conditions)?;
+        let plate_reduction =
+            kind == ShellElementKind::P1bP0 && matches!(chart, Chart::Plate { .. });
         if plate_reduction {
-            let mut fixed: Vec<bool> = numbering.free_index.iter().map(Option::is_none).collect();
-            for c in [R3, PSI] {
-                for d in 0..layout.n_scalar() {
-                    fixed[layout.index(c, d)] = true;
-                }
+            for f in [
+                FieldRole::CartesianRotation(2),
+                FieldRole::TangencyMultiplier,
+            ] {
+                let field = layout.fields[layout.field_of(f).expect("thesis layout")];
+                fixed[field.offset..field.offset + field.len].fill(true);
             }
-            numbering = DofNumbering::from_fixed_mask(&fixed);
         }
-        let edges = scene.load.as_ref().map_or(0, |l| l.edge.len());
-        let mut simulated = vec!["clamping".to_string()];
-        if scene
-            .load
-            .as_ref()
-            .and_then(|l| l.f)
-            .is_some_and(|f| f.iter().any(|v| *v != 0.0))
+        let numbering = DofNumbering::from_fixed_mask(&fixed);
+        let clamped_tags: Vec<Option<Vec<i32>>> = conditions
+            .iter()
+            .filter(|(_, b)| b.condition == BoundaryCondition::Clamped)
+            .map(|(t, _)| t.clone())
+            .collect();
+        let load = scene.load.as_ref();
+        let body_force = load.and_then(|l| l.f).unwrap_or([0.0; 3]);
+        let mut edge_loads = Vec::new();
+        for edge in load.map_or(&[][..], |l| &l.edge[..]) {
+            let tags = named_boundary_tags(
+                mesh,
+                scene,
+                "load.edge.part",
+                Some(std::slice::from_ref(&edge.part)),
+            )?
+            .expect("one name given");
+            edge_loads.push((tags[0], edge.traction, edge.moment));
+        }
+        let mut simulated = Vec::new();
+        if !clamped_tags.is_empty() {
+            simulated.push("clamping".to_string());
+        }
+        if conditions
+            .iter()
+            .any(|(_, b)| b.condition != BoundaryCondition::Clamped)
         {
+            simulated.push("boundary-conditions".into());
+        }
+        if body_force.iter().any(|v| *v != 0.0) {
             simulated.push("body-force".into());
         }
-        if edges > 0 {
+        if !edge_loads.is_empty() {
             simulated.push("edge-loads".into());
         }
-        simulated.push(if plate_reduction {
-            "tangency-eliminated".into()
-        } else {
-            "tangency-multiplier".into()
+        simulated.push(match (kind, plate_reduction) {
+            (ShellElementKind::P2P2bPsri, _) => "tangent-rotations,reduced-integration".into(),
+            (_, true) => "tangency-eliminated".into(),
+            (_, false) => "tangency-multiplier".into(),
         });
-        let (phi, phi_positive_vertices) = match &scene.obstacle {
-            None => (None, 0),
+        let (level, phi, phi_positive_vertices) = match &scene.obstacle {
+            None => (None, None, 0),
             Some(obstacle) => {
                 simulated.push("contact".into());
                 let level = obstacle.level();
@@ -99,19 +310,27 @@ impl<'m> NaghdiSystem<'m> {
                     .into_iter()
                     .map(|p| p + level)
                     .collect();
-                check_feasible(mesh, scene, &phi, clamped.as_deref())?;
+                for tags in &clamped_tags {
+                    check_feasible(mesh, scene, &phi, tags.as_deref())?;
+                }
                 let positive = phi.iter().filter(|p| **p > 0.0).count();
-                (Some(phi), positive)
+                (Some(level), Some(phi), positive)
             }
         };
         Ok(NaghdiSystem {
             mesh,
             chart,
             material,
-            rho: shell.rho,
+            rho: match kind {
+                ShellElementKind::P1bP0 => shell.rho.expect("validated: p1b-p0 has rho"),
+                ShellElementKind::P2P2bPsri => 0.0,
+            },
             layout,
             numbering,
             plate_reduction,
+            body_force,
+            edge_loads,
+            level,
             phi,
             phi_positive_vertices,
             tangency_scale: Cell::new(1.0),
@@ -119,94 +338,142 @@ impl<'m> NaghdiSystem<'m> {
         })
     }
 
-    /// The full coefficient vector (all 7 blocks, clamped dofs = 0, ψ unscaled).
+    /// The full coefficient vector (all blocks, fixed dofs = 0, ψ unscaled).
     pub fn full_coefficients(&self, x: &[f64]) -> Vec<f64> {
         let mut full = self.numbering.extend(x, &vec![0.0; self.layout.n_total()]);
-        let sigma = self.tangency_scale.get();
-        let ns = self.layout.n_scalar();
-        full[PSI * ns..].iter_mut().for_each(|v| *v *= sigma);
+        if let Some(psi) = self.layout.psi() {
+            let sigma = self.tangency_scale.get();
+            let f = &self.layout.fields[psi];
+            full[f.offset..f.offset + f.len]
+                .iter_mut()
+                .for_each(|v| *v *= sigma);
+        }
         full
+    }
+
+    /// The weights of the fields in (u − ε/2 r)·e3 at a point of the chart.
+    fn constraint_weights(&self, x: [f64; 2]) -> Vec<(usize, f64)> {
+        let half_eps = 0.5 * self.material.thickness;
+        let p = self.chart.at(x);
+        self.layout
+            .fields
+            .iter()
+            .enumerate()
+            .filter_map(|(f, field)| match field.role {
+                FieldRole::Displacement(2) => Some((f, 1.0)),
+                FieldRole::CartesianRotation(2) => Some((f, -half_eps)),
+                FieldRole::TangentRotation(be) => Some((f, -half_eps * p.a(be).z)),
+                _ => None,
+            })
+            .collect()
     }
 
     /// The vertex values of the constraint function (u − ε/2 r)·e3.
     fn constraint_at_vertices(&self, full: &[f64]) -> Vec<f64> {
-        let (u3, r3) = (
-            self.layout.component(full, 2),
-            self.layout.component(full, R3),
-        );
-        let half_eps = 0.5 * self.material.thickness;
         (0..self.layout.n_vertices)
-            .map(|v| u3[v] - half_eps * r3[v])
+            .map(|v| {
+                self.constraint_weights(self.mesh.vertices[v])
+                    .into_iter()
+                    .map(|(f, w)| w * self.layout.component(full, f)[v])
+                    .sum()
+            })
             .collect()
+    }
+
+    /// The Cartesian rotation r at the vertices, [Nv, 3].
+    fn rotation_at_vertices(&self, full: &[f64]) -> Vec<f64> {
+        let mut out = Vec::with_capacity(3 * self.layout.n_vertices);
+        for v in 0..self.layout.n_vertices {
+            let p = self.chart.at(self.mesh.vertices[v]);
+            let mut r = Vector3::zeros();
+            for (f, field) in self.layout.fields.iter().enumerate() {
+                let value = self.layout.component(full, f)[v];
+                match field.role {
+                    FieldRole::CartesianRotation(c) => r[c] += value,
+                    FieldRole::TangentRotation(be) => r += p.a(be) * value,
+                    _ => {}
+                }
+            }
+            out.extend(r.iter());
+        }
+        out
     }
 }
 
 impl ModelSystem for NaghdiSystem<'_> {
-    fn assemble(&self, scene: &Scene) -> Result<ContactProblem> {
-        let load = scene.load.as_ref();
-        let f = load.and_then(|l| l.f).unwrap_or([0.0; 3]);
-        let (a_full, mut f_full) =
-            assemble_shell_full(self.mesh, &self.chart, &self.material, self.rho, f);
-        for edge in load.map_or(&[][..], |l| &l.edge[..]) {
-            let tags = named_boundary_tags(
-                self.mesh,
-                scene,
-                "load.edge.part",
-                Some(std::slice::from_ref(&edge.part)),
-            )?
-            .expect("one name given");
+    fn assemble(&self, _scene: &Scene) -> Result<ContactProblem> {
+        let (a_full, mut f_full) = assemble_shell_layout(
+            self.mesh,
+            &self.layout,
+            &self.chart,
+            &self.material,
+            self.rho,
+            self.body_force,
+        );
+        for &(tag, traction, moment) in &self.edge_loads {
             add_edge_load(
                 self.mesh,
+                &self.layout,
                 &self.chart,
-                tags[0],
-                edge.traction,
-                edge.moment,
+                tag,
+                traction,
+                moment,
                 &mut f_full,
             );
         }
-        let mut problem = restrict_shell(self.mesh, a_full, &f_full, &self.numbering);
+        let mut problem = restrict_shell(&self.layout, a_full, &f_full, &self.numbering);
         if problem.n_primal < problem.n() {
             // ψ present: balance its rows with K's (needed for large ρ).
             let sigma = balanced_tangency_scale(&problem);
             scale_tangency_multiplier(&mut problem, sigma);
             self.tangency_scale.set(sigma);
         }
-        if let Some(phi) = &self.phi {
-            problem.constraint = Some(plane_constraint(
-                self.mesh,
-                &self.material,
-                phi,
-                &self.numbering,
-            ));
+        if let (Some(phi), Some(level)) = (&self.phi, self.level) {
+            problem.constraint = Some(match self.layout.kind {
+                ShellElementKind::P1bP0 => {
+                    plane_constraint(self.mesh, &self.material, phi, &self.numbering)
+                }
+                ShellElementKind::P2P2bPsri => nodal_plane_constraint(
+                    self.mesh,
+                    &self.layout,
+                    &self.chart,
+                    &self.material,
+                    level,
+                    &self.numbering,
+                ),
+            });
         }
         Ok(problem)
     }
 
     /// The gap at the origin |((u − ε/2 r)·e3)(0,0) − Φ_h(0,0)| (thesis
-    /// Table 5.5), when the origin lies in ω and the scene has an obstacle.
+    /// Table 5.5), when the origin lies in ω and the scene has an obstacle
+    /// (Φ_h: the P1 interpolant with P0 multipliers, Φ itself with P1).
     fn probes(&self) -> Vec<Probe> {
-        let Some(phi) = &self.phi else {
+        let (Some(phi), Some(level)) = (&self.phi, self.level) else {
             return Vec::new();
         };
         let Some((t, l)) = PointLocator::new(self.mesh).locate([0.0, 0.0]) else {
             return Vec::new();
         };
-        // Coefficients of the P1⊕B3 basis at the origin, for u3 and r3, in the
-        // free numbering; Φ_h is P1.
-        let space = Space::new(self.mesh, Element::P1Bubble);
-        let basis = Element::P1Bubble.basis(l);
-        let (dofs, _) = space.element_dofs(t);
-        let half_eps = 0.5 * self.material.thickness;
         let mut terms: Vec<(usize, f64)> = Vec::new();
-        for k in 0..4 {
-            for (c, factor) in [(2, 1.0), (R3, -half_eps)] {
-                if let Some(i) = self.numbering.free_index[self.layout.index(c, dofs[k])] {
-                    terms.push((i, factor * basis.values[k]));
+        for (f, weight) in self.constraint_weights([0.0, 0.0]) {
+            let field = self.layout.fields[f];
+            let basis = field.element.basis(l);
+            let (dofs, n) = Space::new(self.mesh, field.element).element_dofs(t);
+            for k in 0..n {
+                if let Some(i) = self.numbering.free_index[field.offset + dofs[k]] {
+                    terms.push((i, weight * basis.values[k]));
                 }
             }
         }
         let tri = self.mesh.triangles[t];
-        let phi0: f64 = (0..3).map(|k| l[k] * phi[tri[k]]).sum();
+        let phi0: f64 = match self.layout.kind {
+            ShellElementKind::P1bP0 => (0..3).map(|k| l[k] * phi[tri[k]]).sum(),
+            ShellElementKind::P2P2bPsri => {
+                obstacle_function(&self.chart.at([0.0, 0.0]), self.material.thickness) + level
+            }
+        };
         vec![Probe {
             name: "gap_origin".into(),
             evaluate: Box::new(move |x: &[f64], _| {
@@ -218,36 +485,59 @@ impl ModelSystem for NaghdiSystem<'_> {
 
     fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData {
         let full = self.full_coefficients(&report.x);
-        let nv = self.layout.n_vertices;
+        let layout = &self.layout;
+        let nv = layout.n_vertices;
         let mut data = ResultData {
             scene_text: scene.text.clone(),
+            write_edges: layout
+                .fields
+                .iter()
+                .any(|f| matches!(f.element, Element::P2 | Element::P2Bubble)),
             ..Default::default()
         };
-        // Vertex fields [Nv, 3] of u and r; /dofs/u, /dofs/r are the three
-        // component blocks (Nv vertex values then Nt bubbles each) in a row.
-        for (name, first) in [("u", 0), ("r", 3)] {
-            let mut values = Vec::with_capacity(3 * nv);
-            for v in 0..nv {
-                for c in first..first + 3 {
-                    values.push(self.layout.component(&full, c)[v]);
-                }
+        let displacement: Vec<usize> = (0..3)
+            .filter_map(|c| layout.field_of(FieldRole::Displacement(c)))
+            .collect();
+        let mut u = Vec::with_capacity(3 * nv);
+        for v in 0..nv {
+            u.extend(displacement.iter().map(|&f| layout.component(&full, f)[v]));
+        }
+        data.fields.push(Field {
+            name: "u".into(),
+            values: u,
+            components: 3,
+            location: Location::Vertex,
+        });
+        data.fields.push(Field {
+            name: "r".into(),
+            values: self.rotation_at_vertices(&full),
+            components: 3,
+            location: Location::Vertex,
+        });
+        // /dofs: u and the rotation unknowns (r or θ) as component blocks in a
+        // row, ψ; each with the `space` attribute naming its blocks.
+        let groups: Vec<(&str, Vec<usize>)> = match layout.kind {
+            ShellElementKind::P1bP0 => {
+                vec![("u", vec![0, 1, 2]), ("r", vec![3, 4, 5]), ("psi", vec![6])]
             }
-            data.fields.push(Field {
-                name: name.into(),
-                values,
-                components: 3,
-                location: Location::Vertex,
-            });
-            let dofs: Vec<f64> = (first..first + 3)
-                .flat_map(|c| self.layout.component(&full, c).iter().copied())
+            ShellElementKind::P2P2bPsri => vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])],
+        };
+        for (name, fields) in groups {
+            let dofs: Vec<f64> = fields
+                .iter()
+                .flat_map(|&f| layout.component(&full, f).iter().copied())
                 .collect();
             data.dofs.push((name.into(), dofs));
+            let element = layout.fields[fields[0]].element;
+            data.dof_spaces
+                .push((name.into(), crate::output::space_tag(element, fields.len())));
         }
-        let psi = self.layout.component(&full, PSI);
-        data.fields.push(vertex_field("psi", psi[..nv].to_vec()));
-        data.dofs.push(("psi".into(), psi.to_vec()));
+        if let Some(psi) = layout.psi() {
+            let psi = layout.component(&full, psi);
+            data.fields.push(vertex_field("psi", psi[..nv].to_vec()));
+        }
         let constraint = self.constraint_at_vertices(&full);
-        let u3 = &self.layout.component(&full, 2)[..nv];
+        let u3 = &layout.component(&full, displacement[2])[..nv];
         let (u3_min, u3_max) = min_max(u3);
         let mut attrs: Vec<(&str, AttrValue)> = vec![
             ("model", AttrValue::Str("naghdi".into())),
@@ -257,40 +547,51 @@ impl ModelSystem for NaghdiSystem<'_> {
             ("n_dofs", AttrValue::I64(self.n_dofs() as i64)),
             ("n_free_dofs", AttrValue::I64(problem.n() as i64)),
             ("h", AttrValue::F64(self.mesh.h_max())),
-            ("rho", AttrValue::F64(self.rho)),
-            ("tangency_scale", AttrValue::F64(self.tangency_scale.get())),
-            ("u3_min", AttrValue::F64(u3_min)),
-            ("u3_max", AttrValue::F64(u3_max)),
         ];
-        for (name, c) in [("u1", 0), ("u2", 1)] {
-            let (lo, hi) = min_max(&self.layout.component(&full, c)[..nv]);
-            attrs.push((
-                if name == "u1" { "u1_min" } else { "u2_min" },
-                AttrValue::F64(lo),
-            ));
-            attrs.push((
-                if name == "u1" { "u1_max" } else { "u2_max" },
-                AttrValue::F64(hi),
-            ));
+        if layout.kind == ShellElementKind::P1bP0 {
+            attrs.push(("rho", AttrValue::F64(self.rho)));
+            attrs.push(("tangency_scale", AttrValue::F64(self.tangency_scale.get())));
+        }
+        attrs.push(("u3_min", AttrValue::F64(u3_min)));
+        attrs.push(("u3_max", AttrValue::F64(u3_max)));
+        for (c, (lo_name, hi_name)) in [("u1_min", "u1_max"), ("u2_min", "u2_max")]
+            .into_iter()
+            .enumerate()
+        {
+            let (lo, hi) = min_max(&layout.component(&full, displacement[c])[..nv]);
+            attrs.push((lo_name, AttrValue::F64(lo)));
+            attrs.push((hi_name, AttrValue::F64(hi)));
         }
         if let (Some(phi), Some(c)) = (&self.phi, &problem.constraint) {
             data.fields.push(vertex_field("phi", phi.clone()));
             data.fields
                 .push(vertex_field("constraint", constraint.clone()));
-            let area: f64 = report
-                .lambda
-                .iter()
-                .zip(&c.weights)
-                .filter(|(l, _)| **l > 0.0)
-                .map(|(_, w)| w)
-                .sum();
+            let active = || {
+                report
+                    .lambda
+                    .iter()
+                    .zip(&c.weights)
+                    .filter(|(l, _)| **l > 0.0)
+            };
+            let area: f64 = active().map(|(_, w)| w).sum();
+            // ∫λ: the total force the plane exerts (C's row for u3 ≡ 1 is w).
+            let force: f64 = active().map(|(l, w)| l * w).sum();
+            let location = match layout.kind.multiplier_element() {
+                Element::P0 => Location::Cell,
+                _ => Location::Vertex,
+            };
             contact_fields(
                 &mut data,
                 report.lambda.clone(),
                 c.mean_gaps(&report.x),
-                Location::Cell,
+                location,
             );
+            data.dof_spaces.push((
+                "lambda".into(),
+                crate::output::space_tag(layout.kind.multiplier_element(), 1),
+            ));
             attrs.push(("contact_area", AttrValue::F64(area)));
+            attrs.push(("contact_force", AttrValue::F64(force)));
             attrs.push((
                 "phi_positive_vertices",
                 AttrValue::I64(self.phi_positive_vertices as i64),
@@ -309,14 +610,14 @@ impl ModelSystem for NaghdiSystem<'_> {
         data
     }
 
-    /// The thesis count: U and ψ with boundary dofs, plus λ with contact.
+    /// The dof count: U (and ψ) with boundary dofs, plus λ with contact.
     fn n_dofs(&self) -> usize {
         let contact = if self.phi.is_some() {
-            self.layout.n_triangles
+            self.layout.n_multipliers()
         } else {
             0
         };
-        N_COMPONENTS * self.layout.n_scalar() + contact
+        self.layout.n_total() + contact
     }
 }
 
