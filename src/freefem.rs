@@ -456,11 +456,11 @@ pub fn run_freefem_scene(
         None => out.with_extension("msh"),
     };
     let mesh = scene_mesh(scene, &msh)?;
-    if scene.element == ElementPair::P2P2bPsri {
+    if scene.element == ElementPair::P2bPsri {
         return Err(scene_error(
             scene,
             "element",
-            "the FreeFEM twin of p2-p2b-psri is not wired into `obstacle freefem` yet; `obstacle freefem` runs the thesis' p1b-p0",
+            "the FreeFEM twin of p2b-psri is not wired into `obstacle freefem` yet; `obstacle freefem` runs the thesis' p1b-p0",
         ));
     }
     let plan = match &scene.obstacle {
@@ -624,7 +624,7 @@ fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> 
     let (nu, nl, location) = match scene.element {
         ElementPair::P1bP0 => (nv + nt, nt, Location::Cell),
         ElementPair::P2P1 => (nv + mesh.n_edges(), nv, Location::Vertex),
-        ElementPair::P2P2bPsri => unreachable!("refused by run_freefem_scene"),
+        ElementPair::P2bPsri => unreachable!("refused by run_freefem_scene"),
     };
     let u = read_len(&file("u.txt"), nu)?;
     let mut data = ResultData {

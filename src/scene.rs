@@ -62,11 +62,11 @@ pub enum ElementPair {
     /// P2 for u, P1 for λ (constraint tested with P1 hats).
     #[serde(rename = "p2-p1")]
     P2P1,
-    /// Shell only, the locking-free element: P2 displacements, P2⊕B3 tangent
+    /// Shell only, the locking-free element: P2⊕B3 displacements and tangent
     /// rotations r = θ^β a_β, partial selective reduced integration of the
     /// membrane and shear energies; P1 contact multipliers.
-    #[serde(rename = "p2-p2b-psri")]
-    P2P2bPsri,
+    #[serde(rename = "p2b-psri")]
+    P2bPsri,
 }
 
 impl ElementPair {
@@ -74,7 +74,7 @@ impl ElementPair {
         match self {
             ElementPair::P1bP0 => "p1b-p0",
             ElementPair::P2P1 => "p2-p1",
-            ElementPair::P2P2bPsri => "p2-p2b-psri",
+            ElementPair::P2bPsri => "p2b-psri",
         }
     }
 }
@@ -137,7 +137,7 @@ pub struct ShellSpec {
     /// Thickness ε.
     pub thickness: f64,
     /// Penalty ρ ≥ 0 of a_ρ = a + ρ ∫ ∇(r·a3)·∇(s·a3) (ρ = 0: a_ρ is not
-    /// coercive). Needed by `p1b-p0`; `p2-p2b-psri` has tangent rotations and
+    /// coercive). Needed by `p1b-p0`; `p2b-psri` has tangent rotations and
     /// no penalty (a given ρ is recorded and unused).
     pub rho: Option<f64>,
     /// Physical names of the clamped parts γ0 (u = r = ψ = 0); default: all
@@ -399,6 +399,10 @@ pub struct OutputSpec {
     pub plots: Vec<PlotKind>,
     #[serde(default)]
     pub plot_format: PlotFormat,
+    /// Shell: a point of ω where the displacement is recorded (root
+    /// attributes `probe_u1`, `probe_u2`, `probe_u3`), e.g. the point of a
+    /// benchmark's reference deflection.
+    pub probe: Option<[f64; 2]>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -659,10 +663,10 @@ impl Scene {
         if self.shell.is_some() {
             return Err(self.error("shell", "a [shell] table needs model = \"naghdi\""));
         }
-        if self.element == ElementPair::P2P2bPsri {
+        if self.element == ElementPair::P2bPsri {
             return Err(self.error(
                 "element",
-                "\"p2-p2b-psri\" is a shell element; the membrane takes \"p1b-p0\" or \"p2-p1\"",
+                "\"p2b-psri\" is a shell element; the membrane takes \"p1b-p0\" or \"p2-p1\"",
             ));
         }
         if let Some(o) = &self.obstacle {
@@ -678,6 +682,9 @@ impl Scene {
             if o.height.is_none() {
                 return Err(self.error("obstacle.height", "the paraboloid needs φ(0,0) = height"));
             }
+        }
+        if self.output.probe.is_some() {
+            return Err(self.error("output.probe", "the probe records a shell's displacement"));
         }
         if let Some(k) = self.output.plots.iter().find(|k| k.shell_only()) {
             return Err(self.error(
@@ -717,12 +724,10 @@ impl Scene {
                     "the thesis element (p1b-p0) needs the penalty ρ of a_ρ (the thesis takes 1e3)",
                 ))
             }
-            (ElementPair::P2P1, _) => {
-                return Err(self.error(
-                    "element",
-                    "the shell elements are \"p1b-p0\" (the thesis') and \"p2-p2b-psri\" (locking-free)",
-                ))
-            }
+            (ElementPair::P2P1, _) => return Err(self.error(
+                "element",
+                "the shell elements are \"p1b-p0\" (the thesis') and \"p2b-psri\" (locking-free)",
+            )),
             _ => {}
         }
         if let Some(rho) = shell.rho {
@@ -740,6 +745,9 @@ impl Scene {
                     "a_ρ is not coercive at ρ = 0 (thesis §5.3): the first splitting (method = \"uzawa-split\") factorises K_ρ alone and needs ρ > 0 (the thesis takes 1e3); the saddle-point methods (uzawa, active-set, dual-accelerated) accept ρ = 0",
                 ));
             }
+        }
+        for (i, v) in self.output.probe.iter().flatten().enumerate() {
+            self.check_finite(&format!("output.probe[{i}]"), *v)?;
         }
         for (i, b) in shell.boundary.iter().enumerate() {
             let field = format!("shell.boundary[{i}]");

@@ -47,7 +47,7 @@ impl<'m> MembraneSystem<'m> {
         let (u_element, lambda_element) = match scene.element {
             ElementPair::P1bP0 => (Element::P1Bubble, Element::P0),
             ElementPair::P2P1 => (Element::P2, Element::P1),
-            ElementPair::P2P2bPsri => unreachable!("validated: a shell element"),
+            ElementPair::P2bPsri => unreachable!("validated: a shell element"),
         };
         let u_space = Space::new(mesh, u_element);
         let tags = named_boundary_tags(
@@ -123,7 +123,7 @@ impl ModelSystem for MembraneSystem<'_> {
                             .collect();
                         (g_vec, areas)
                     }
-                    ElementPair::P2P1 | ElementPair::P2P2bPsri => {
+                    ElementPair::P2P1 | ElementPair::P2bPsri => {
                         // g_i = ∫ φ μ_i; w_i = lumped P1 mass (SPEC §1: the Riesz map
                         // whose projection is a nodal max).
                         let g_vec =

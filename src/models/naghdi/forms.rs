@@ -6,14 +6,13 @@
 //!   r1, r2, r3 (the Cartesian displacement u and rotation r) and the
 //!   tangency multiplier ψ for r·a3 = 0; P0 contact multipliers; every form
 //!   with Radon's 7-point rule (FreeFEM's `qf5pT`);
-//! * `p2-p2b-psri`, the locking-free element (docs/shell-benchmarks.md):
-//!   u1, u2, u3 in P2 and the rotation r = θ^1 a_1 + θ^2 a_2 with θ^β in
-//!   P2⊕B3 (no bubble on u: with the reduced rule each displacement bubble
-//!   carries a zero-energy mode per triangle); r is tangent by construction (no ψ, no ρ: K is symmetric positive
+//! * `p2b-psri`, the locking-free element (docs/shell-benchmarks.md):
+//!   u1, u2, u3 and the rotation r = θ^1 a_1 + θ^2 a_2, all five in P2⊕B3;
+//!   r is tangent by construction (no ψ, no ρ: K is symmetric positive
 //!   definite); the membrane and shear energies by partial selective reduced
-//!   integration (Arnold–Brezzi): a weight α = min(1, ε²/ℓ²) on the full
-//!   rule and 1 − α on the 3-point interior rule of degree 2; P1 contact
-//!   multipliers.
+//!   integration (Arnold–Brezzi, as FEniCS-Shells): a weight
+//!   α_T = min(1, ε²/h_T²) on the full rule and 1 − α_T on the 3-point
+//!   interior rule of degree 2; P1 contact multipliers.
 //!
 //! The unknowns are scalar fields in blocks ([`ShellLayout`]): the global index
 //! of scalar dof d of field f is `fields[f].offset + d`.
@@ -66,9 +65,9 @@ const PAIRS: [[usize; 2]; 3] = [[0, 0], [1, 1], [0, 1]];
 pub enum ShellElementKind {
     /// The thesis' element: (P1⊕B3)⁶ × P1⊕B3 (ψ), P0 contact multipliers.
     P1bP0,
-    /// The locking-free element: P2³ displacements, (P2⊕B3)² tangent
-    /// rotation components, PSRI, P1 contact multipliers.
-    P2P2bPsri,
+    /// The locking-free element: (P2⊕B3)⁵ (u and two tangent rotation
+    /// components), PSRI, P1 contact multipliers.
+    P2bPsri,
 }
 
 impl ShellElementKind {
@@ -76,7 +75,7 @@ impl ShellElementKind {
     pub fn multiplier_element(self) -> Element {
         match self {
             ShellElementKind::P1bP0 => Element::P0,
-            ShellElementKind::P2P2bPsri => Element::P1,
+            ShellElementKind::P2bPsri => Element::P1,
         }
     }
 }
@@ -136,10 +135,10 @@ impl ShellLayout {
                     (name, role, Element::P1Bubble)
                 })
                 .collect(),
-            ShellElementKind::P2P2bPsri => vec![
-                ("u1", Displacement(0), Element::P2),
-                ("u2", Displacement(1), Element::P2),
-                ("u3", Displacement(2), Element::P2),
+            ShellElementKind::P2bPsri => vec![
+                ("u1", Displacement(0), Element::P2Bubble),
+                ("u2", Displacement(1), Element::P2Bubble),
+                ("u3", Displacement(2), Element::P2Bubble),
                 ("theta1", TangentRotation(0), Element::P2Bubble),
                 ("theta2", TangentRotation(1), Element::P2Bubble),
             ],
@@ -403,28 +402,27 @@ pub struct IntegrationPass {
     pub full: bool,
 }
 
-/// The partial selective reduced integration weight α = min(1, ε²/ℓ²), ℓ
-/// the diameter of ω (the diagonal of its bounding box): the fraction of the
-/// membrane and shear energies integrated exactly. FEniCS-Shells' choice
-/// (α = 1 with κ = 1/t² on a unit-size domain); Arnold–Brezzi's ε²/h_T² was
-/// measured stiffer (docs/shell-benchmarks.md: clamped plate at 16×16, −1.6 %
-/// at ε = 0.08 against −0.7 %).
-pub fn psri_weight(mesh: &Mesh, thickness: f64) -> f64 {
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for v in &mesh.vertices {
-        for k in 0..2 {
-            lo[k] = lo[k].min(v[k]);
-            hi[k] = hi[k].max(v[k]);
-        }
-    }
-    let diameter = (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
-    (thickness * thickness / (diameter * diameter)).min(1.0)
+/// The partial selective reduced integration weight of triangle T
+/// (Arnold–Brezzi): α_T = min(1, ε²/h_T²), h_T the longest edge of T
+/// (FreeFEM's `hTriangle`), the fraction of the membrane and shear energies
+/// integrated exactly. It also holds the one zero-energy mode per triangle
+/// and displacement field that the reduced rule leaves in P2⊕B3
+/// (docs/shell-benchmarks.md).
+pub fn psri_weight(mesh: &Mesh, t: usize, thickness: f64) -> f64 {
+    let v = mesh.triangles[t].map(|i| mesh.vertices[i]);
+    let h = (0..3)
+        .map(|i| {
+            let (p, q) = (v[i], v[(i + 1) % 3]);
+            (p[0] - q[0]).hypot(p[1] - q[1])
+        })
+        .fold(0.0, f64::max);
+    (thickness * thickness / (h * h)).min(1.0)
 }
 
 /// The quadrature passes of the layout's element: one pass of Radon's rule
-/// (thesis), or the PSRI pair with α = [`psri_weight`] (full rule: bending
-/// and α (membrane + shear); the interior 3-point rule of degree 2:
-/// (1 − α)(membrane + shear)).
+/// (thesis), or the PSRI pair with α = [`psri_weight`] of the triangle (full
+/// rule: bending and α (membrane + shear); the interior 3-point rule of
+/// degree 2: (1 − α)(membrane + shear)).
 pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPass> {
     match layout.kind {
         ShellElementKind::P1bP0 => vec![IntegrationPass {
@@ -432,7 +430,7 @@ pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPa
             factors: None,
             full: true,
         }],
-        ShellElementKind::P2P2bPsri => {
+        ShellElementKind::P2bPsri => {
             vec![
                 IntegrationPass {
                     rule: TriangleRule::exact_for(5),
@@ -588,8 +586,8 @@ pub fn assemble_shell_layout(
     let n = layout.n_total();
     let mut a = Triplets::new(n, n);
     let mut f = vec![0.0; n];
-    let passes = integration_passes(layout, psri_weight(mesh, material.thickness));
     for t in 0..mesh.n_triangles() {
+        let passes = integration_passes(layout, psri_weight(mesh, t, material.thickness));
         let el = element_matrices(mesh, layout, &passes, t, chart, material, rho, load);
         let (u, psi) = element_globals(mesh, layout, t);
         if t == 0 {
@@ -1048,10 +1046,10 @@ mod tests {
         // Both elements; ∫ of the u3 basis is |T| + 9|T|/20 (P1⊕B3) or |T| (P2).
         for (kind, mass) in [
             (ShellElementKind::P1bP0, 1.45),
-            (ShellElementKind::P2P2bPsri, 1.0),
+            (ShellElementKind::P2bPsri, 1.0),
         ] {
             let layout = ShellLayout::for_element(&mesh, kind);
-            let passes = integration_passes(&layout, psri_weight(&mesh, 0.8));
+            let passes = integration_passes(&layout, psri_weight(&mesh, 0, 0.8));
             let el = element_matrices(
                 &mesh,
                 &layout,

@@ -1,5 +1,5 @@
 //! The Naghdi shell as a model of the pipeline (SPEC §2, thesis Problem 9),
-//! with either shell element (`p1b-p0`, `p2-p2b-psri`: forms.rs):
+//! with either shell element (`p1b-p0`, `p2b-psri`: forms.rs):
 //! [`NaghdiSystem::setup`] checks the chart and the obstacle on the mesh,
 //! resolves the boundary conditions per part and component and numbers the
 //! fixed dofs; `assemble` builds exactly the effects the scene
@@ -244,11 +244,20 @@ impl<'m> NaghdiSystem<'m> {
         check_chart_regular(mesh, scene, &chart)?;
         let material = shell.material();
         let kind = match scene.element {
-            ElementPair::P2P2bPsri => ShellElementKind::P2P2bPsri,
+            ElementPair::P2bPsri => ShellElementKind::P2bPsri,
             _ => ShellElementKind::P1bP0,
         };
         let layout = ShellLayout::for_element(mesh, kind);
         let conditions = resolved_conditions(mesh, scene, shell)?;
+        if let Some(x) = scene.output.probe {
+            if PointLocator::new(mesh).locate(x).is_none() {
+                return Err(Error::Scene {
+                    file: scene.source.clone(),
+                    field: "output.probe".into(),
+                    reason: format!("the point ({}, {}) lies outside the mesh", x[0], x[1]),
+                });
+            }
+        }
         let mut fixed = fixed_mask(mesh, scene, &layout, &chart, &conditions)?;
         let plate_reduction =
             kind == ShellElementKind::P1bP0 && matches!(chart, Chart::Plate { .. });
@@ -297,7 +306,7 @@ impl<'m> NaghdiSystem<'m> {
             simulated.push("edge-loads".into());
         }
         simulated.push(match (kind, plate_reduction) {
-            (ShellElementKind::P2P2bPsri, _) => "tangent-rotations,reduced-integration".into(),
+            (ShellElementKind::P2bPsri, _) => "tangent-rotations,reduced-integration".into(),
             (_, true) => "tangency-eliminated".into(),
             (_, false) => "tangency-multiplier".into(),
         });
@@ -323,7 +332,7 @@ impl<'m> NaghdiSystem<'m> {
             material,
             rho: match kind {
                 ShellElementKind::P1bP0 => shell.rho.expect("validated: p1b-p0 has rho"),
-                ShellElementKind::P2P2bPsri => 0.0,
+                ShellElementKind::P2bPsri => 0.0,
             },
             layout,
             numbering,
@@ -433,7 +442,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                 ShellElementKind::P1bP0 => {
                     plane_constraint(self.mesh, &self.material, phi, &self.numbering)
                 }
-                ShellElementKind::P2P2bPsri => nodal_plane_constraint(
+                ShellElementKind::P2bPsri => nodal_plane_constraint(
                     self.mesh,
                     &self.layout,
                     &self.chart,
@@ -470,7 +479,7 @@ impl ModelSystem for NaghdiSystem<'_> {
         let tri = self.mesh.triangles[t];
         let phi0: f64 = match self.layout.kind {
             ShellElementKind::P1bP0 => (0..3).map(|k| l[k] * phi[tri[k]]).sum(),
-            ShellElementKind::P2P2bPsri => {
+            ShellElementKind::P2bPsri => {
                 obstacle_function(&self.chart.at([0.0, 0.0]), self.material.thickness) + level
             }
         };
@@ -520,7 +529,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             ShellElementKind::P1bP0 => {
                 vec![("u", vec![0, 1, 2]), ("r", vec![3, 4, 5]), ("psi", vec![6])]
             }
-            ShellElementKind::P2P2bPsri => vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])],
+            ShellElementKind::P2bPsri => vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])],
         };
         for (name, fields) in groups {
             let dofs: Vec<f64> = fields
@@ -561,6 +570,16 @@ impl ModelSystem for NaghdiSystem<'_> {
             let (lo, hi) = min_max(&layout.component(&full, displacement[c])[..nv]);
             attrs.push((lo_name, AttrValue::F64(lo)));
             attrs.push((hi_name, AttrValue::F64(hi)));
+        }
+        if let Some(x) = scene.output.probe {
+            if let Some((t, l)) = PointLocator::new(self.mesh).locate(x) {
+                for (c, name) in ["probe_u1", "probe_u2", "probe_u3"].into_iter().enumerate() {
+                    let field = layout.fields[displacement[c]];
+                    let space = Space::new(self.mesh, field.element);
+                    let value = space.evaluate(layout.component(&full, displacement[c]), t, l);
+                    attrs.push((name, AttrValue::F64(value)));
+                }
+            }
         }
         if let (Some(phi), Some(c)) = (&self.phi, &problem.constraint) {
             data.fields.push(vertex_field("phi", phi.clone()));
