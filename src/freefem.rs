@@ -1,9 +1,16 @@
-//! The FreeFEM twin of a scene: `freefem/membrane-obstacle.edp` or
-//! `freefem/naghdi-contact.edp` run on the very mesh file the Rust run uses,
-//! with every parameter taken from the scene and passed on the command line
-//! (`getARGV`), and its text output converted to a SPEC §5 result file with
-//! the field and dof names of the Rust run (so `obstacle info` and
-//! `obstacle compare` read both alike).
+//! The FreeFEM twin of a scene: `freefem/membrane-obstacle.edp`,
+//! `freefem/naghdi-contact.edp` (shell element `p1b-p0`) or
+//! `freefem/naghdi-psri.edp` (the shell's PSRI element) run on the very
+//! mesh file the Rust run uses, with every parameter taken from the scene and
+//! passed on the command line (`getARGV`), and its text output converted to a
+//! docs/formulation.md §5 result file with the field and dof names of the Rust run (so
+//! `obstacle info` and `obstacle compare` read both alike).
+//!
+//! The PSRI script takes its boundary conditions as
+//! `-fix "LABEL:u1,u2,…;…"` (whole labels, per field): [`psri_fix_spec`]
+//! translates the scene's `shell.clamped` and `[[shell.boundary]]` into it,
+//! and refuses what that cannot express (a symmetry plane whose fixed θ
+//! component changes along the part).
 //!
 //! The scripts run Uzawa only. How a scene's stop maps (see [`uzawa_plan`]):
 //! `--iterations K` runs exactly K iterations; otherwise `stop = "thesis"`
@@ -19,15 +26,18 @@
 use crate::error::{Error, Result};
 use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::Mesh;
+use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, ShellLayout};
 use crate::models::naghdi::geometry::Chart;
-use crate::models::{contact_fields, vertex_field};
-use crate::output::{write_result, AttrValue, Field, Location, ResultData};
+use crate::models::{contact_fields, named_boundary_tags, vertex_field};
+use crate::output::{space_tag, write_result, AttrValue, Field, Location, ResultData};
 use crate::pipeline::scene_mesh;
 use crate::scene::{
-    Alpha, AlphaKeyword, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
+    Alpha, AlphaKeyword, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm,
+    StopRule,
 };
 use crate::solvers::spectrum::estimate_dual_spectrum;
-use std::collections::HashMap;
+use crate::space::{Element, Space};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::Instant;
@@ -49,13 +59,26 @@ pub fn script_dir() -> PathBuf {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("freefem"))
 }
 
-/// The script of a model.
+/// The script of a model (the shell: its thesis element `p1b-p0`).
 pub fn script_for(model: Model) -> PathBuf {
     script_dir().join(match model {
         Model::Membrane => "membrane-obstacle.edp",
         Model::Naghdi => "naghdi-contact.edp",
     })
 }
+
+/// The script of a scene: [`script_for`] its model, or `naghdi-psri.edp` for
+/// the shell's PSRI element.
+pub fn script_for_scene(scene: &Scene) -> PathBuf {
+    if scene.model == Model::Naghdi && scene.element == ElementPair::P2bPsri {
+        script_dir().join(PSRI_SCRIPT)
+    } else {
+        script_for(scene.model)
+    }
+}
+
+/// The FreeFEM twin of the shell's PSRI element.
+pub const PSRI_SCRIPT: &str = "naghdi-psri.edp";
 
 fn tool_error(script: &Path, reason: impl Into<String>) -> Error {
     Error::Tool {
@@ -284,6 +307,26 @@ pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> Uzawa
 /// The scene's α; "auto" is the Rust run's choice, 2/(s_max + s_min) capped
 /// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled problem.
 pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
+    if let Some(factor) = scene.solver.alpha_factor {
+        // α = factor × 2/s_max, as the Rust run (pipeline.rs).
+        let system = crate::pipeline::setup_model(scene, mesh)?;
+        let problem = system.assemble(scene)?;
+        let f = factorize_checked(
+            &problem.matrix,
+            problem.kind,
+            Solves::Many,
+            "α = alpha_factor × 2/s_max (Lanczos)",
+        )?;
+        let step_form = scene.solver.step_form.unwrap_or(StepForm::Mean);
+        return match estimate_dual_spectrum(&problem, &f, step_form, 50) {
+            Some(s) => Ok(factor * 2.0 / s.s_max),
+            None => Err(scene_error(
+                scene,
+                "solver.alpha_factor",
+                "no estimate of s_max (no constraint rows): give `alpha` instead",
+            )),
+        };
+    }
     match scene.solver.alpha {
         Some(Alpha::Value(a)) => Ok(a),
         None => Err(scene_error(
@@ -309,9 +352,11 @@ pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
     }
 }
 
-/// The script's command line for `scene` (mesh file, data, Uzawa plan).
+/// The script's command line for `scene` (mesh file, data, Uzawa plan);
+/// `mesh` is the mesh read from `msh` (the PSRI element's boundary parts).
 pub fn script_args(
     scene: &Scene,
+    mesh: &Mesh,
     msh: &Path,
     plan: Option<&UzawaPlan>,
     prefix: &Path,
@@ -345,6 +390,9 @@ pub fn script_args(
                 "-curvature".into(),
                 f(obstacle.curvature.unwrap_or(0.0)),
             ]);
+        }
+        Model::Naghdi if scene.element == ElementPair::P2bPsri => {
+            a.extend(psri_args(scene, mesh)?);
         }
         Model::Naghdi => {
             let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
@@ -429,6 +477,344 @@ pub fn script_args(
     Ok(a)
 }
 
+/// The data options of `naghdi-psri.edp` for a PSRI scene: spaces, weight rule, chart,
+/// material, body force, `-fix` ([`psri_fix_spec`]) and the plane's level.
+fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
+    let f = |x: f64| format!("{x:e}");
+    let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
+    let spaces = PsriSpaces::of(mesh);
+    let rule = psri_weight_rule(scene, mesh, shell.thickness)?;
+    if scene.load.as_ref().is_some_and(|l| !l.edge.is_empty()) {
+        return Err(scene_error(
+            scene,
+            "load.edge",
+            format!("the FreeFEM script {PSRI_SCRIPT} has no edge loads"),
+        ));
+    }
+    let (chart, params): (&str, Vec<(&str, f64)>) = match shell.chart {
+        Chart::HyperbolicParaboloid { r, offset } => {
+            ("hypar", vec![("-R", r), ("-offset", offset)])
+        }
+        Chart::Plate { height } => ("plate", vec![("-height", height)]),
+        Chart::Cylinder { radius, height } => {
+            ("cylinder", vec![("-R", radius), ("-height", height)])
+        }
+        Chart::CurvatureKink { r, offset } => ("kink", vec![("-R", r), ("-offset", offset)]),
+    };
+    let mut a: Vec<String> = vec![
+        format!("-DUSPACE={}", spaces.u.tag()),
+        format!("-DTSPACE={}", spaces.theta.tag()),
+        "-psriweight".into(),
+        rule.name().into(),
+        "-element".into(),
+        scene.element.name().into(),
+        "-chart".into(),
+        chart.into(),
+    ];
+    for (key, value) in params {
+        a.extend([key.into(), f(value)]);
+    }
+    let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
+    a.extend([
+        "-E".into(),
+        f(shell.young),
+        "-nu".into(),
+        f(shell.poisson),
+        "-eps".into(),
+        f(shell.thickness),
+        "-f1".into(),
+        f(load[0]),
+        "-f2".into(),
+        f(load[1]),
+        "-f3".into(),
+        f(load[2]),
+    ]);
+    let fix = psri_fix_spec(scene, mesh)?;
+    if !fix.is_empty() {
+        a.extend(["-fix".into(), fix]);
+    }
+    if let Some(o) = &scene.obstacle {
+        if o.shape != ObstacleShape::RigidPlane {
+            return Err(scene_error(
+                scene,
+                "obstacle.shape",
+                "the shell's obstacle is the rigid plane",
+            ));
+        }
+        a.extend(["-level".into(), f(o.level())]);
+    }
+    Ok(a)
+}
+
+/// The spaces of u and θ of the PSRI element (the Rust layout's).
+#[derive(Debug, Clone, Copy)]
+struct PsriSpaces {
+    u: Element,
+    theta: Element,
+}
+
+impl PsriSpaces {
+    fn of(mesh: &Mesh) -> PsriSpaces {
+        let layout = ShellLayout::for_element(mesh, PSRI_KIND);
+        let element = |role| {
+            let f = layout.field_of(role).expect("the PSRI layout has u and θ");
+            layout.fields[f].element
+        };
+        PsriSpaces {
+            u: element(FieldRole::Displacement(0)),
+            theta: element(FieldRole::TangentRotation(0)),
+        }
+    }
+}
+
+/// The shell element kind `naghdi-psri.edp` twins.
+const PSRI_KIND: ShellElementKind = ShellElementKind::P2bPsri;
+
+/// The rules of the PSRI weight α the script knows (`-psriweight`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PsriWeightRule {
+    /// α = min(1, ε²/ℓ²), ℓ the diagonal of the mesh's bounding box.
+    Diameter,
+    /// α_T = min(1, ε²/h_T²), h_T the longest edge of T.
+    Triangle,
+}
+
+impl PsriWeightRule {
+    fn name(self) -> &'static str {
+        match self {
+            PsriWeightRule::Diameter => "diameter",
+            PsriWeightRule::Triangle => "triangle",
+        }
+    }
+
+    fn weight(self, mesh: &Mesh, t: usize, thickness: f64) -> f64 {
+        let length = match self {
+            PsriWeightRule::Diameter => {
+                let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+                for v in &mesh.vertices {
+                    for k in 0..2 {
+                        lo[k] = lo[k].min(v[k]);
+                        hi[k] = hi[k].max(v[k]);
+                    }
+                }
+                (hi[0] - lo[0]).hypot(hi[1] - lo[1])
+            }
+            PsriWeightRule::Triangle => {
+                let v = mesh.triangles[t].map(|i| mesh.vertices[i]);
+                (0..3)
+                    .map(|i| (v[i][0] - v[(i + 1) % 3][0]).hypot(v[i][1] - v[(i + 1) % 3][1]))
+                    .fold(0.0, f64::max)
+            }
+        };
+        (thickness * thickness / (length * length)).min(1.0)
+    }
+}
+
+/// The PSRI weight of every triangle, as the Rust assembly takes it
+/// (forms.rs `psri_weight`).
+fn rust_psri_weights(mesh: &Mesh, thickness: f64) -> Vec<f64> {
+    (0..mesh.n_triangles())
+        .map(|t| psri_weight(mesh, t, thickness))
+        .collect()
+}
+
+/// Whether two weights agree to round-off.
+fn same_weight(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-12 * a.abs().max(b.abs())
+}
+
+/// The script's rule that gives the Rust weights on this mesh.
+fn psri_weight_rule(scene: &Scene, mesh: &Mesh, thickness: f64) -> Result<PsriWeightRule> {
+    let rust = rust_psri_weights(mesh, thickness);
+    [PsriWeightRule::Diameter, PsriWeightRule::Triangle]
+        .into_iter()
+        .find(|rule| {
+            rust.iter()
+                .enumerate()
+                .all(|(t, &w)| same_weight(w, rule.weight(mesh, t, thickness)))
+        })
+        .ok_or_else(|| {
+            scene_error(
+                scene,
+                "element",
+                format!(
+                    "the Rust PSRI weight (forms.rs psri_weight) follows neither rule of {PSRI_SCRIPT} (-psriweight diameter, triangle)"
+                ),
+            )
+        })
+}
+
+/// The fields of the PSRI element in `-fix` (and Rust's field names).
+const PSRI_FIELDS: [&str; 5] = ["u1", "u2", "u3", "theta1", "theta2"];
+
+/// The scene's boundary conditions for `naghdi-psri.edp`'s `-fix`:
+/// `"TAG:field,…;TAG:field,…"`, one item per boundary part (physical tag)
+/// with a fixed field, the fields in `u1, u2, u3, theta1, theta2` order. As
+/// `NaghdiSystem::setup` resolves them: `shell.clamped` (default: all of
+/// ∂ω when no `[[shell.boundary]]` is given) fixes all five fields; simply
+/// supported u1, u2, u3; a diaphragm with normal e_n the u_c with c ≠ n;
+/// fixed the named fields; free nothing; a symmetry plane with normal e_n
+/// fixes u_n and the θ^β whose a_β leaves the plane, which `-fix` states
+/// only when that is the same component at every node of the part (plate,
+/// cylinder lines): otherwise, and where neither tangent lies in the plane,
+/// an error names the part.
+pub fn psri_fix_spec(scene: &Scene, mesh: &Mesh) -> Result<String> {
+    let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
+    let mut fixed: BTreeMap<i32, BTreeSet<usize>> = BTreeMap::new();
+    let all = 0..PSRI_FIELDS.len();
+    match &shell.clamped {
+        None if shell.boundary.is_empty() => {
+            for e in &mesh.boundary_edges {
+                fixed.entry(e.tag).or_default().extend(all.clone());
+            }
+        }
+        None => {}
+        Some(names) => {
+            let tags = named_boundary_tags(mesh, scene, "shell.clamped", Some(names))?
+                .expect("names given");
+            for tag in tags {
+                fixed.entry(tag).or_default().extend(all.clone());
+            }
+        }
+    }
+    for (i, b) in shell.boundary.iter().enumerate() {
+        let field = format!("shell.boundary[{i}]");
+        let tag = named_boundary_tags(
+            mesh,
+            scene,
+            &format!("{field}.part"),
+            Some(std::slice::from_ref(&b.part)),
+        )?
+        .expect("one name given")[0];
+        let n = b.normal.map(|a| a.index());
+        let fields: Vec<usize> = match b.condition {
+            BoundaryCondition::Clamped => all.clone().collect(),
+            BoundaryCondition::SimplySupported => vec![0, 1, 2],
+            BoundaryCondition::Diaphragm => (0..3).filter(|&c| Some(c) != n).collect(),
+            BoundaryCondition::Free => Vec::new(),
+            BoundaryCondition::Symmetry => {
+                let Some(n) = n else {
+                    return Err(scene_error(
+                        scene,
+                        &format!("{field}.normal"),
+                        "a symmetry plane needs its normal",
+                    ));
+                };
+                let mut f = vec![n];
+                f.extend(symmetry_rotations(
+                    scene,
+                    mesh,
+                    &shell.chart,
+                    tag,
+                    n,
+                    &b.part,
+                )?);
+                f
+            }
+            BoundaryCondition::Fixed => b
+                .fix
+                .as_deref()
+                .unwrap_or_default()
+                .iter()
+                .map(|name| {
+                    PSRI_FIELDS.iter().position(|f| f == name).ok_or_else(|| {
+                        scene_error(
+                            scene,
+                            &format!("{field}.fix"),
+                            format!(
+                                "part `{}`: `{name}` is no field of element {}: {}",
+                                b.part,
+                                scene.element.name(),
+                                PSRI_FIELDS.join(", ")
+                            ),
+                        )
+                    })
+                })
+                .collect::<Result<_>>()?,
+        };
+        fixed.entry(tag).or_default().extend(fields);
+    }
+    Ok(fixed
+        .iter()
+        .filter(|(_, f)| !f.is_empty())
+        .map(|(tag, f)| {
+            let names: Vec<&str> = f.iter().map(|&k| PSRI_FIELDS[k]).collect();
+            format!("{tag}:{}", names.join(","))
+        })
+        .collect::<Vec<_>>()
+        .join(";"))
+}
+
+/// The θ fields (3 + β) a symmetry plane with normal e_n fixes on the part
+/// `tag`: at each boundary node (vertices and edge midpoints of its edges)
+/// θ^β with a_β·e_n ≠ 0 where the other tangent lies in the plane (as
+/// `NaghdiSystem::setup`, same tolerance); an error unless the set is the
+/// same at every node.
+fn symmetry_rotations(
+    scene: &Scene,
+    mesh: &Mesh,
+    chart: &Chart,
+    tag: i32,
+    n: usize,
+    part: &str,
+) -> Result<Vec<usize>> {
+    let mut common: Option<(Vec<usize>, [f64; 2])> = None;
+    for e in mesh.boundary_edges.iter().filter(|e| e.tag == tag) {
+        let [p, q] = e.vertices.map(|v| mesh.vertices[v]);
+        for x in [p, q, [0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1])]] {
+            let sp = chart.at(x);
+            let along = |b: usize| sp.a(b)[n].abs() <= 1e-12 * sp.a(b).norm();
+            let mut here = Vec::new();
+            for be in 0..2 {
+                if along(be) {
+                    continue;
+                }
+                if !along(1 - be) {
+                    return Err(scene_error(
+                        scene,
+                        "shell.boundary.normal",
+                        format!(
+                            "part `{part}`: at ({:.6}, {:.6}) neither tangent a_1 nor a_2 of the {} chart lies in the symmetry plane (normal e{}), so r·e{} = 0 is no condition on one rotation component",
+                            x[0], x[1], chart.kind(), n + 1, n + 1
+                        ),
+                    ));
+                }
+                here.push(3 + be);
+            }
+            match &common {
+                None => common = Some((here, x)),
+                Some((c, x0)) if *c != here => {
+                    let names = |f: &[usize]| -> String {
+                        let v: Vec<&str> = f.iter().map(|&k| PSRI_FIELDS[k]).collect();
+                        if v.is_empty() {
+                            "none".into()
+                        } else {
+                            v.join(", ")
+                        }
+                    };
+                    return Err(scene_error(
+                        scene,
+                        "shell.boundary.normal",
+                        format!(
+                            "part `{part}`: the symmetry plane (normal e{}) fixes θ component(s) {} at ({:.6}, {:.6}) but {} at ({:.6}, {:.6}) on the {} chart; the FreeFEM twin {PSRI_SCRIPT} fixes fields on whole boundary parts (-fix) and cannot state this condition",
+                            n + 1,
+                            names(c),
+                            x0[0],
+                            x0[1],
+                            names(&here),
+                            x[0],
+                            x[1],
+                            chart.kind()
+                        ),
+                    ));
+                }
+                Some(_) => {}
+            }
+        }
+    }
+    Ok(common.map(|(c, _)| c).unwrap_or_default())
+}
+
 /// What a FreeFEM run reports besides its result file.
 #[derive(Debug, Clone)]
 pub struct FreefemRun {
@@ -456,13 +842,7 @@ pub fn run_freefem_scene(
         None => out.with_extension("msh"),
     };
     let mesh = scene_mesh(scene, &msh)?;
-    if scene.element == ElementPair::P2bPsri {
-        return Err(scene_error(
-            scene,
-            "element",
-            "the FreeFEM twin of p2b-psri is not wired into `obstacle freefem` yet; `obstacle freefem` runs the thesis' p1b-p0",
-        ));
-    }
+    let psri = scene.model == Model::Naghdi && scene.element == ElementPair::P2bPsri;
     let plan = match &scene.obstacle {
         Some(_) => Some(uzawa_plan(scene, resolve_alpha(scene, &mesh)?, iterations)),
         None => None,
@@ -472,8 +852,8 @@ pub fn run_freefem_scene(
         .tempdir()
         .map_err(|e| Error::output(std::env::temp_dir(), format!("cannot create a folder: {e}")))?;
     let prefix = work.path().join("ff");
-    let script = script_for(scene.model);
-    let args = script_args(scene, &msh, plan.as_ref(), &prefix)?;
+    let script = script_for_scene(scene);
+    let args = script_args(scene, &mesh, &msh, plan.as_ref(), &prefix)?;
     let wall_seconds = run_script_checked(&script, &args)?;
 
     let file = |ext: &str| PathBuf::from(format!("{}.{ext}", prefix.display()));
@@ -481,6 +861,7 @@ pub fn run_freefem_scene(
     let info = Info::read(&file("info.txt"))?;
     let mut data = match scene.model {
         Model::Membrane => membrane_data(scene, &mesh, &file)?,
+        Model::Naghdi if psri => psri_data(scene, &mesh, &info, &file)?,
         Model::Naghdi => naghdi_data(scene, &mesh, &file)?,
     };
     let it = info.usize("iterations")?;
@@ -579,7 +960,7 @@ pub fn run_freefem_scene(
     })
 }
 
-/// Penetration, dual_min, complementarity and active count (SPEC §4) from
+/// Penetration, dual_min, complementarity and active count (docs/formulation.md §4) from
 /// the stored λ and ḡ; stationarity and tangency need the matrices and are
 /// not recorded.
 fn contact_measures(data: &ResultData) -> Vec<(String, AttrValue)> {
@@ -624,7 +1005,13 @@ fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> 
     let (nu, nl, location) = match scene.element {
         ElementPair::P1bP0 => (nv + nt, nt, Location::Cell),
         ElementPair::P2P1 => (nv + mesh.n_edges(), nv, Location::Vertex),
-        ElementPair::P2bPsri => unreachable!("refused by run_freefem_scene"),
+        ElementPair::P2bPsri => {
+            return Err(scene_error(
+                scene,
+                "element",
+                format!("{} is a shell element", scene.element.name()),
+            ))
+        }
     };
     let u = read_len(&file("u.txt"), nu)?;
     let mut data = ResultData {
@@ -682,6 +1069,142 @@ fn naghdi_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Re
     } else {
         data.fields.push(vertex_field("constraint", constraint));
     }
+    Ok(data)
+}
+
+/// The fields and dofs of the PSRI element, named and laid out as
+/// `NaghdiSystem::results` writes them: `u`, `r` = θ^β a_β and the
+/// constraint (u − ε/2 r)·e3 at the vertices, `/dofs/u` (P2^3), `/dofs/theta`
+/// (P2b^2), with contact `phi` and the P1 multiplier's fields and
+/// `/dofs/lambda` (P1). Checks the script's edge order against the mesh's
+/// and its PSRI weight α against [`psri_weight`].
+fn psri_data(
+    scene: &Scene,
+    mesh: &Mesh,
+    info: &Info,
+    file: &dyn Fn(&str) -> PathBuf,
+) -> Result<ResultData> {
+    let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
+    let (nv, ne, nt) = (mesh.n_vertices(), mesh.n_edges(), mesh.n_triangles());
+    let edges_path = file("edges.txt");
+    let edges = read_len(&edges_path, 2 * ne)?;
+    if let Some(e) =
+        (0..ne).find(|&e| [edges[2 * e], edges[2 * e + 1]] != mesh.edges[e].map(|v| v as f64))
+    {
+        return Err(Error::mesh(
+            &mesh.source,
+            format!(
+                "FreeFEM ({}) edge {e} is [{}, {}], Rust has {:?}: the P2 edge orders differ",
+                edges_path.display(),
+                edges[2 * e],
+                edges[2 * e + 1],
+                mesh.edges[e]
+            ),
+        ));
+    }
+    let alpha_path = file("psri_alpha.txt");
+    let alpha = read_len(&alpha_path, nt)?;
+    let expected = rust_psri_weights(mesh, shell.thickness);
+    if let Some(t) = (0..nt).find(|&t| !same_weight(alpha[t], expected[t])) {
+        return Err(Error::output(
+            &alpha_path,
+            format!(
+                "triangle {t}: PSRI weight {:e}, Rust's psri_weight is {:e}",
+                alpha[t], expected[t]
+            ),
+        ));
+    }
+    let spaces = PsriSpaces::of(mesh);
+    for (key, element) in [("u_space", spaces.u), ("theta_space", spaces.theta)] {
+        if info.text(key)? != element.tag() {
+            return Err(Error::output(
+                &info.path,
+                format!(
+                    "{key} = {}, the Rust layout has {}",
+                    info.text(key)?,
+                    element.tag()
+                ),
+            ));
+        }
+    }
+    let (np, nb) = (
+        Space::new(mesh, spaces.u).n_dofs(),
+        Space::new(mesh, spaces.theta).n_dofs(),
+    );
+    let u = read_len(&file("u.txt"), 3 * np)?;
+    let theta = read_len(&file("theta.txt"), 2 * nb)?;
+    let points: Vec<_> = mesh.vertices.iter().map(|&x| shell.chart.at(x)).collect();
+    let mut data = ResultData {
+        write_edges: true,
+        ..Default::default()
+    };
+    data.fields.push(Field {
+        name: "u".into(),
+        values: (0..nv)
+            .flat_map(|v| {
+                let u = &u;
+                (0..3).map(move |c| u[c * np + v])
+            })
+            .collect(),
+        components: 3,
+        location: Location::Vertex,
+    });
+    // r = θ^1 a_1 + θ^2 a_2, summed in Rust's order.
+    let r: Vec<f64> = points
+        .iter()
+        .enumerate()
+        .flat_map(|(v, p)| {
+            let mut r = nalgebra::Vector3::zeros();
+            for be in 0..2 {
+                r += p.a(be) * theta[be * nb + v];
+            }
+            [r.x, r.y, r.z]
+        })
+        .collect();
+    data.fields.push(Field {
+        name: "r".into(),
+        values: r,
+        components: 3,
+        location: Location::Vertex,
+    });
+    data.dofs.push(("u".into(), u.clone()));
+    data.dof_spaces.push(("u".into(), space_tag(spaces.u, 3)));
+    data.dofs.push(("theta".into(), theta.clone()));
+    data.dof_spaces
+        .push(("theta".into(), space_tag(spaces.theta, 2)));
+    let half_eps = 0.5 * shell.thickness;
+    let constraint: Vec<f64> = points
+        .iter()
+        .enumerate()
+        .map(|(v, p)| {
+            [
+                u[2 * np + v],
+                -half_eps * p.a1.z * theta[v],
+                -half_eps * p.a2.z * theta[nb + v],
+            ]
+            .iter()
+            .sum()
+        })
+        .collect();
+    if scene.obstacle.is_some() {
+        data.fields
+            .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
+        data.fields.push(vertex_field("constraint", constraint));
+        let lambda = read_len(&file("lambda.txt"), nv)?;
+        let gap = read_len(&file("gap.txt"), nv)?;
+        contact_fields(&mut data, lambda, gap, Location::Vertex);
+        data.dof_spaces
+            .push(("lambda".into(), space_tag(Element::P1, 1)));
+    } else {
+        data.fields.push(vertex_field("constraint", constraint));
+    }
+    data.root_attrs.extend([
+        ("chart".into(), AttrValue::Str(shell.chart.kind().into())),
+        (
+            "psri_weight".into(),
+            AttrValue::Str(info.text("psri_weight")?.into()),
+        ),
+    ]);
     Ok(data)
 }
 

@@ -201,7 +201,7 @@ pub fn run_all(dir: &Path, out_dir: &Path, extra: &[(String, String)]) -> Vec<Ha
         .map(|&(case, expect)| {
             let overrides: Vec<String> = extra
                 .iter()
-                .filter(|(c, _)| c == case)
+                .filter(|(c, _)| c == case || c == "*")
                 .map(|(_, o)| o.clone())
                 .collect();
             let row = run_case(dir, case, expect, &overrides, out_dir);
@@ -280,7 +280,7 @@ pub fn table(rows: &[HardRow]) -> String {
 }
 
 /// `obstacle hard [DIR] [--set CASE:KEY=VALUE]... [--out-dir DIR]`: runs every
-/// case, prints the table, writes it to `<out_dir>/hard.md`; an error when a
+/// case (CASE `*`: the override applies to all), prints the table, writes it to `<out_dir>/hard.md`; an error when a
 /// case does not do what it must.
 pub fn command(dir: &Path, out_dir: &Path, set: &[String]) -> Result<()> {
     let mut extra = Vec::new();
@@ -290,7 +290,7 @@ pub fn command(dir: &Path, out_dir: &Path, set: &[String]) -> Result<()> {
             field: s.clone(),
             reason: "a hard-case override is CASE:KEY=VALUE, e.g. mesh-large:mesh.n=96".into(),
         })?;
-        if !CASES.iter().any(|(c, _)| *c == case) {
+        if case != "*" && !CASES.iter().any(|(c, _)| *c == case) {
             return Err(Error::Scene {
                 file: dir.to_path_buf(),
                 field: s.clone(),

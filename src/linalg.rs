@@ -281,30 +281,36 @@ impl ReusableFactorization {
                 })?,
             )),
             SymbolicAnalysis::Ldlt { symbolic, n_primal } if *n_primal == a.nrows() => {
-                // The SPD fallback: no pivot is regularised (all signs +), so
-                // the refined solve is backward stable; its residual relative
-                // to ‖b‖ may still be ~ε·κ (thin shells: κ ~ 1e12), so it is
-                // judged by the backward error ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖).
-                let l = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what)?;
-                let f = Factorization::Ldlt(Box::new(l));
-                let mut x = if norm_inf(b) == 0.0 { test_rhs(a.nrows()) } else { b.to_vec() };
-                let rhs = x.clone();
-                f.solve_in_place(&mut x);
-                let r = norm_inf(&residual(a, &x, &rhs));
-                let backward = r / (norm_inf(a.val()) * norm_inf(&x) + norm_inf(&rhs));
-                if !backward.is_finite() || backward > SPD_BACKWARD_ACCEPTED {
-                    return Err(Error::numerical(
-                        what,
-                        "factorisation residual",
-                        format!("backward error {backward:.3e} of the equilibrated, refined LDLᵀ (> {SPD_BACKWARD_ACCEPTED:e}): the matrix is singular or nearly so"),
-                    ));
+                // Every pivot positive (the SPD fallback): no pivot is
+                // regularised, so the refined solve is backward stable; its
+                // residual relative to ‖b‖ may still be ~ε·κ (thin shells:
+                // κ ~ 1e12), so it is judged by the backward error
+                // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
+                // definite after all goes on to LU, as below.
+                let solved = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what)
+                    .ok()
+                    .map(|l| Factorization::Ldlt(Box::new(l)))
+                    .and_then(|f| {
+                        let rhs = if norm_inf(b) == 0.0 { test_rhs(a.nrows()) } else { b.to_vec() };
+                        let mut x = rhs.clone();
+                        f.solve_in_place(&mut x);
+                        let r = norm_inf(&residual(a, &x, &rhs));
+                        let backward = r / (norm_inf(a.val()) * norm_inf(&x) + norm_inf(&rhs));
+                        (backward <= SPD_BACKWARD_ACCEPTED).then(|| {
+                            let x = if norm_inf(b) == 0.0 { vec![0.0; b.len()] } else { x };
+                            (f, x, r / norm_inf(&rhs))
+                        })
+                    });
+                if let Some(done) = solved {
+                    self.numeric_factorizations += 1;
+                    return Ok(done);
                 }
-                self.numeric_factorizations += 1;
-                let rel = r / norm_inf(&rhs);
-                if norm_inf(b) == 0.0 {
-                    return Ok((f, vec![0.0; b.len()], rel));
-                }
-                return Ok((f, x, rel));
+                self.symbolic = SymbolicAnalysis::Lu(
+                    SymbolicLu::try_new(a.symbolic())
+                        .map_err(|e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")))?,
+                );
+                self.symbolic_analyses += 1;
+                return self.factorize_and_solve(a, b, what);
             }
             SymbolicAnalysis::Ldlt { symbolic, n_primal } => {
                 let ldlt = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what).ok();

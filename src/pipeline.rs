@@ -458,7 +458,7 @@ fn write_constraint_plots(
     )
 }
 
-/// The `/solver` attributes and history of SPEC §5.
+/// The `/solver` attributes and history of docs/formulation.md §5.
 fn record_solver(
     data: &mut ResultData,
     scene: &Scene,

@@ -39,9 +39,9 @@ pub struct Scene {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Model {
-    /// −Δu = g, u = 0 on the boundary, u ≥ φ (SPEC §1).
+    /// −Δu = g, u = 0 on the boundary, u ≥ φ (docs/formulation.md §1).
     Membrane,
-    /// The Cartesian Naghdi shell, optionally in contact with a rigid plane (SPEC §2).
+    /// The Cartesian Naghdi shell, optionally in contact with a rigid plane (docs/formulation.md §2).
     Naghdi,
 }
 
@@ -238,7 +238,7 @@ pub struct ObstacleSpec {
 pub enum ObstacleShape {
     /// Membrane: φ(x, y) = height − curvature · (x² + y²).
     Paraboloid,
-    /// Shell: the rigid half-space z < height below the shell (SPEC §2).
+    /// Shell: the rigid half-space z < height below the shell (docs/formulation.md §2).
     RigidPlane,
 }
 
@@ -278,7 +278,7 @@ pub struct SolverSpec {
     pub step_form: Option<StepForm>,
     #[serde(default = "default_max_iter")]
     pub max_iter: i64,
-    /// Tolerance on the relative KKT measures (SPEC §4).
+    /// Tolerance on the relative KKT measures (docs/formulation.md §4).
     #[serde(default = "default_tol")]
     pub tol: f64,
     /// Which criterion stops the iteration; both are always recorded.
@@ -323,7 +323,7 @@ fn default_thesis_tol() -> f64 {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
-    /// The thesis' Uzawa iteration (Algorithm 1, "second splitting", SPEC §3).
+    /// The thesis' Uzawa iteration (Algorithm 1, "second splitting", docs/formulation.md §3).
     Uzawa,
     /// The thesis' Ch. 4 "first splitting": Richardson on ψ and λ.
     UzawaSplit,
@@ -609,7 +609,7 @@ impl Scene {
             if s.step_form.is_none() {
                 return Err(self.error(
                     "solver.step_form",
-                    "name the dual step form: \"mean\" or \"integral\" (SPEC §3)",
+                    "name the dual step form: \"mean\" or \"integral\" (docs/formulation.md §3)",
                 ));
             }
         }

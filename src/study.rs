@@ -65,6 +65,10 @@ pub struct ReferenceSpec {
 pub struct Sweep {
     pub key: String,
     pub values: Vec<toml::Value>,
+    /// Keys set together with `key`, one value per value of `key` (e.g. the
+    /// load scaled with the thickness): `with = { "load.f" = [...] }`.
+    #[serde(default)]
+    pub with: std::collections::BTreeMap<String, Vec<toml::Value>>,
 }
 
 /// One run of a study: its overrides (beyond `set`) and what it reported.
@@ -91,6 +95,19 @@ impl Study {
                 "every sweep needs at least one value".into(),
             ));
         }
+        for s in &study.sweep {
+            if let Some((k, v)) = s.with.iter().find(|(_, v)| v.len() != s.values.len()) {
+                return Err(err(
+                    "sweep.with",
+                    format!(
+                        "`{k}` has {} values, `{}` has {}: `with` pairs one value with each",
+                        v.len(),
+                        s.key,
+                        s.values.len()
+                    ),
+                ));
+            }
+        }
         Ok(study)
     }
 
@@ -101,9 +118,12 @@ impl Study {
             runs = runs
                 .into_iter()
                 .flat_map(|prefix| {
-                    sweep.values.iter().map(move |v| {
+                    sweep.values.iter().enumerate().map(move |(i, v)| {
                         let mut r = prefix.clone();
                         r.push((sweep.key.clone(), v.to_string()));
+                        for (k, w) in &sweep.with {
+                            r.push((k.clone(), w[i].to_string()));
+                        }
                         r
                     })
                 })

@@ -63,6 +63,35 @@ pub fn components<'a>(
     }
 }
 
+/// Splits `/dofs/<name>` into the k blocks of `element` its `space`
+/// attribute names (named name1..namek when k > 1).
+pub fn components_in_space<'a>(
+    name: &str,
+    dofs: &'a [f64],
+    mesh: &Mesh,
+    element: Element,
+    k: usize,
+) -> Option<Vec<Component<'a>>> {
+    let n = Space::new(mesh, element).n_dofs();
+    if k == 0 || dofs.len() != k * n {
+        return None;
+    }
+    Some(
+        dofs.chunks(n)
+            .enumerate()
+            .map(|(c, coefficients)| Component {
+                name: if k == 1 {
+                    name.to_string()
+                } else {
+                    format!("{name}{}", c + 1)
+                },
+                element,
+                coefficients,
+            })
+            .collect(),
+    )
+}
+
 /// ‖f_coarse − f_fine‖_{L²} / ‖f_fine‖_{L²}, both integrated over the fine mesh.
 pub fn relative_l2_error(
     coarse: &Space,
@@ -158,11 +187,21 @@ fn stored_components<'a>(
         .iter()
         .find(|(n, _)| n == name)
         .ok_or_else(|| Error::output(path, format!("has no /dofs/{name}")))?;
-    components(name, v, mesh.n_vertices(), mesh.n_triangles()).ok_or_else(|| {
+    let space = file
+        .data
+        .dof_spaces
+        .iter()
+        .find(|(n, _)| n == name)
+        .and_then(|(_, tag)| crate::output::parse_space_tag(tag));
+    let split = match space {
+        Some((element, k)) => components_in_space(name, v, mesh, element, k),
+        None => components(name, v, mesh.n_vertices(), mesh.n_triangles()),
+    };
+    split.ok_or_else(|| {
         Error::output(
             path,
             format!(
-                "/dofs/{name} has {} values: not P0, P1 or P1⊕B3 blocks on this mesh",
+                "/dofs/{name} has {} values: not the blocks of its `space` attribute, nor (without one) P0, P1 or P1⊕B3 blocks on this mesh",
                 v.len()
             ),
         )

@@ -1,4 +1,4 @@
-//! `obstacle freefem` and `obstacle compare` end to end (SPEC §5 files on
+//! `obstacle freefem` and `obstacle compare` end to end (docs/formulation.md §5 files on
 //! both sides): the FreeFEM twin of a scene on the very mesh file of the Rust
 //! run, exactly K = 100 Uzawa iterations on both sides, compared field by
 //! field; `compare` failing beyond tolerance, on another mesh and on a file

@@ -1,5 +1,5 @@
 //! Cross-check of the Naghdi shell contact solver against FreeFEM
-//! (`freefem/naghdi-contact.edp`) on the thesis scene (SPEC §2, "second test"):
+//! (`freefem/naghdi-contact.edp`) on the thesis scene (docs/formulation.md §2, "second test"):
 //! the 16×16 diamond, the hyperbolic paraboloid R = 50√2, offset 1.4,
 //! E = 2.85e4, ν = 0.4, ε = 0.8, f = (0, 0, −0.25), ρ = 1e3, clamped on all of
 //! ∂ω. Both sides build the same discrete problem (seven P1⊕B3 fields, P0

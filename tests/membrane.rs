@@ -1,5 +1,5 @@
 //! The membrane obstacle problem on the unit disk against its exact solution
-//! (SPEC §1): convergence rates, contact radius, KKT measures of the
+//! (docs/formulation.md §1): convergence rates, contact radius, KKT measures of the
 //! converged discrete solution, divergence detection. Runs the whole
 //! pipeline (gmsh → assembly → Uzawa → HDF5) through the library.
 //!
@@ -125,7 +125,7 @@ fn p2_p1_converges_at_the_expected_rates() {
     convergence("p2-p1", 2.0, 1.3);
 }
 
-/// The result file of a converged run satisfies the KKT conditions of SPEC §4
+/// The result file of a converged run satisfies the KKT conditions of docs/formulation.md §4
 /// to the requested tolerance, read back from the HDF5 contract.
 #[test]
 fn converged_solution_satisfies_kkt_in_the_result_file() {

@@ -1,4 +1,4 @@
-//! The Cartesian Naghdi shell (SPEC §2): dof count of the thesis mesh, the
+//! The Cartesian Naghdi shell (docs/formulation.md §2): dof count of the thesis mesh, the
 //! free (no contact) thesis hyperbolic paraboloid (KKT residuals at round-off,
 //! mirror symmetries, the contact data C, g at that solution), the penalty ρ
 //! over the thesis' range (1 … 1e9, with the ψ block rescaled for LU), and
@@ -186,11 +186,11 @@ fn thesis_dof_count() {
     assert_eq!(
         numbering.n_total() + c.obstacle.len(),
         6119,
-        "SPEC §2: 7·(289 + 512) + 512"
+        "docs/formulation.md §2: 7·(289 + 512) + 512"
     );
 }
 
-/// The thesis hypar (SPEC §2) without the rigid plane, on the thesis mesh.
+/// The thesis hypar (docs/formulation.md §2) without the rigid plane, on the thesis mesh.
 #[test]
 fn free_hypar() {
     let start = Instant::now();
@@ -243,7 +243,7 @@ fn free_hypar() {
     for t in 0..mesh.n_triangles() {
         assert!((cx[t] - direct[t]).abs() < 1e-12 * c.weights[t]);
     }
-    // Φ at the vertices (SPEC §2): −1 at the origin, ≈ −2e-4 at the clamped
+    // Φ at the vertices (docs/formulation.md §2): −1 at the origin, ≈ −2e-4 at the clamped
     // corners (0, ±R), ≈ −2 at (±R, 0); g_T/|T| is the mean
     // of its P1 interpolant over T.
     let phi = obstacle_at_vertices(&mesh, &chart, &material);

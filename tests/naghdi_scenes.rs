@@ -1,5 +1,5 @@
 //! The Naghdi shell through the whole pipeline (scene → gmsh → assembly →
-//! solver → HDF5): the thesis' second test (`naghdi-hypar`, SPEC §2) and its
+//! solver → HDF5): the thesis' second test (`naghdi-hypar`, docs/formulation.md §2) and its
 //! obstacle-free twin, the plate reduction, edge loads, and the checks a
 //! scene gets before anything is solved.
 
@@ -88,7 +88,7 @@ fn thesis_run_reproduces_table_5_5_at_100_iterations() {
         (gap100 / 0.0317884 - 1.0).abs() < 0.01,
         "gap(100) = {gap100}"
     );
-    // The thesis stop: our count is 803 (the thesis' 686 is not reproducible, SPEC §3).
+    // The thesis stop: our count is 803 (the thesis' 686 is not reproducible, docs/formulation.md §3).
     assert!((700..=900).contains(&s.iterations), "{}", s.iterations);
     let file = read_result(&s.result_file).unwrap();
     let u = field(&file, "u");
@@ -149,7 +149,7 @@ fn converged_contact_solution() {
     assert!(s.converged && m.kkt <= 1e-8);
     let file = read_result(&s.result_file).unwrap();
     let (lambda, gap) = (field(&file, "lambda"), field(&file, "gap_mean"));
-    // The scales of the relative KKT measures (SPEC §4): gaps against
+    // The scales of the relative KKT measures (docs/formulation.md §4): gaps against
     // ‖Φ_h‖∞ = 2.0002, complementarity against that times ‖λ‖∞.
     let gap_scale = field(&file, "phi")
         .iter()

@@ -1,4 +1,4 @@
-//! The HDF5 result file (SPEC §5) and its XDMF companion: round trip, atomic
+//! The HDF5 result file (docs/formulation.md §5) and its XDMF companion: round trip, atomic
 //! writes, refusal of NaN, reading foreign or broken files.
 
 use obstacle_fem::mesh::Mesh;

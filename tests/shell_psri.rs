@@ -201,3 +201,162 @@ fn partly_clamped_hypar() {
         assert!((w / reference - 1.0).abs() < tol, "t = {t}: w = {w:e}");
     }
 }
+
+/// A distorted patch: a square with an off-centre interior vertex.
+fn patch() -> obstacle_fem::mesh::Mesh {
+    use obstacle_fem::mesh::{BoundaryEdge, Mesh};
+    let vertices = vec![
+        [0.0, 0.0],
+        [2.0, 0.0],
+        [2.0, 2.0],
+        [0.0, 2.0],
+        [0.7, 1.2],
+        [1.1, 0.0],
+        [2.0, 0.9],
+    ];
+    let triangles = vec![
+        [0, 5, 4],
+        [5, 1, 6],
+        [5, 6, 4],
+        [6, 2, 4],
+        [2, 3, 4],
+        [3, 0, 4],
+    ];
+    let boundary = [[0, 5], [5, 1], [1, 6], [6, 2], [2, 3], [3, 0]]
+        .map(|vertices| BoundaryEdge { vertices, tag: 1 })
+        .to_vec();
+    Mesh::from_parts(
+        vertices,
+        triangles,
+        boundary,
+        Default::default(),
+        "patch".into(),
+    )
+    .unwrap()
+}
+
+/// K·U for the p2b-psri stiffness of `chart` and the field U given per
+/// field (u1, u2, u3, θ1, θ2) as functions of x, interpolated in P2⊕B3;
+/// returns (max |K U| over the rows of `rows`, max |K|).
+fn stiffness_times(
+    mesh: &obstacle_fem::mesh::Mesh,
+    chart: &Chart,
+    thickness: f64,
+    field: &dyn Fn([f64; 2]) -> [f64; 5],
+    interior_only: bool,
+) -> (f64, f64) {
+    use obstacle_fem::assembly::mat_vec;
+    use obstacle_fem::models::naghdi::forms::{
+        assemble_shell_layout, ShellElementKind, ShellLayout,
+    };
+    use obstacle_fem::models::naghdi::geometry::Material;
+    use obstacle_fem::space::Space;
+    let layout = ShellLayout::for_element(mesh, ShellElementKind::P2bPsri);
+    let material = Material {
+        young: 1e3,
+        poisson: 0.3,
+        thickness,
+    };
+    let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, [0.0; 3]);
+    let scale = a.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()));
+    let mut x = vec![0.0; layout.n_total()];
+    for (f, fl) in layout.fields.iter().enumerate() {
+        let values = Space::new(mesh, fl.element).interpolate(|p| field(p)[f]);
+        x[fl.offset..fl.offset + fl.len].copy_from_slice(&values);
+    }
+    let ax = mat_vec(&a.into_sparse(), &x);
+    let mut worst = 0.0f64;
+    for fl in &layout.fields {
+        let boundary = Space::new(mesh, fl.element).boundary_dof_mask(None);
+        for d in 0..fl.len {
+            if !(interior_only && boundary[d]) {
+                worst = worst.max(ax[fl.offset + d].abs());
+            }
+        }
+    }
+    (worst, scale)
+}
+
+/// Rigid motions have zero energy in the assembled p2b-psri stiffness:
+/// translations on every chart (exact in P2⊕B3, θ = 0), and on the plate
+/// all six (u = a + ω×φ affine, θ^β = (ω×e3)·e_β constant), for thin and
+/// thick shells.
+#[test]
+fn assembled_stiffness_annihilates_rigid_motions() {
+    let mesh = patch();
+    let charts = [
+        Chart::HyperbolicParaboloid {
+            r: 1.7,
+            offset: 0.3,
+        },
+        Chart::Cylinder {
+            radius: 2.0,
+            height: 1.0,
+        },
+        Chart::CurvatureKink {
+            r: 1.5,
+            offset: 0.2,
+        },
+        Chart::Plate { height: 0.5 },
+    ];
+    for chart in charts {
+        for t in [0.1, 0.001] {
+            let (worst, scale) =
+                stiffness_times(&mesh, &chart, t, &|_| [0.2, -0.4, 1.0, 0.0, 0.0], false);
+            assert!(
+                worst < 1e-12 * scale,
+                "{chart:?} t = {t}: translation |KU| = {worst:e}"
+            );
+        }
+    }
+    let omega = Vector3::new(0.3, -0.7, 0.2);
+    let plate = Chart::Plate { height: 0.5 };
+    for t in [0.1, 0.001] {
+        let (worst, scale) = stiffness_times(
+            &mesh,
+            &plate,
+            t,
+            &|x| {
+                let u = omega.cross(&plate.at(x).phi);
+                let r = omega.cross(&Vector3::z());
+                [u.x, u.y, u.z, r.x, r.y]
+            },
+            false,
+        );
+        assert!(
+            worst < 1e-12 * scale,
+            "plate t = {t}: rotation |KU| = {worst:e}"
+        );
+    }
+}
+
+/// Patch tests on a distorted patch of the plate: a constant membrane strain
+/// (u affine in-plane) and a constant curvature with zero shear
+/// (u3 = x²/2 + xy − y²/4, θ = −∇u3, Kirchhoff-consistent) are equilibrium
+/// states with no load: the interior rows of K U vanish to round-off.
+#[test]
+fn membrane_and_bending_patch_tests() {
+    let mesh = patch();
+    let plate = Chart::Plate { height: 0.0 };
+    for t in [0.1, 0.001] {
+        let membrane = |x: [f64; 2]| {
+            [
+                0.3 * x[0] - 0.2 * x[1],
+                0.1 * x[0] + 0.4 * x[1],
+                0.0,
+                0.0,
+                0.0,
+            ]
+        };
+        let (worst, scale) = stiffness_times(&mesh, &plate, t, &membrane, true);
+        assert!(worst < 1e-11 * scale, "membrane patch, t = {t}: {worst:e}");
+        let bending = |x: [f64; 2]| {
+            let (a, b, c) = (0.5, 1.0, -0.25);
+            let w = a * x[0] * x[0] + b * x[0] * x[1] + c * x[1] * x[1];
+            let grad = [2.0 * a * x[0] + b * x[1], b * x[0] + 2.0 * c * x[1]];
+            [0.0, 0.0, w, -grad[0], -grad[1]]
+        };
+        let (worst, scale) = stiffness_times(&mesh, &plate, t, &bending, true);
+        assert!(worst < 1e-11 * scale, "bending patch, t = {t}: {worst:e}");
+    }
+}

@@ -1,4 +1,4 @@
-//! The solvers beyond the thesis' Uzawa (SPEC §3): primal–dual active set
+//! The solvers beyond the thesis' Uzawa (docs/formulation.md §3): primal–dual active set
 //! (semismooth Newton), FISTA with restart on the dual, and the thesis'
 //! first splitting, on the disk membrane (both element pairs) and on the
 //! 16×16 thesis hypar with the rigid plane. Each reaches its KKT tolerance,
@@ -34,7 +34,7 @@ use std::path::Path;
 const SCENE: &str = "pipelines/scenes/obstacle-disk.toml";
 const R: f64 = 50.0 * std::f64::consts::SQRT_2;
 
-/// The disk membrane (SPEC §1) with `mesh.n = n` points per quarter circle.
+/// The disk membrane (docs/formulation.md §1) with `mesh.n = n` points per quarter circle.
 fn membrane(element: &str, n: usize) -> ContactProblem {
     let overrides = vec![format!("element={element}"), format!("mesh.n={n}")];
     let scene = Scene::load(Path::new(SCENE), &overrides).unwrap();
@@ -44,7 +44,7 @@ fn membrane(element: &str, n: usize) -> ContactProblem {
     system.assemble(&scene).unwrap()
 }
 
-/// The thesis hypar (SPEC §2) on the n×n diamond, ρ = 1e3, with the rigid
+/// The thesis hypar (docs/formulation.md §2) on the n×n diamond, ρ = 1e3, with the rigid
 /// plane, the tangency multiplier rescaled for LU.
 fn shell(n: usize) -> ContactProblem {
     shell_with_mesh(n).1

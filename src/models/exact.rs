@@ -1,5 +1,5 @@
 //! The exact solution of the radial obstacle problem on the unit disk
-//! (SPEC §1): −Δu = g (g constant), u = 0 on r = 1, u ≥ φ = c − k r².
+//! (docs/formulation.md §1): −Δu = g (g constant), u = 0 on r = 1, u ≥ φ = c − k r².
 //!
 //! Outside the contact disk r < a, Δu = −g gives u = −g r²/4 + A ln r + g/4
 //! (u(1) = 0). Smooth contact at r = a (u = φ, u' = φ') gives

@@ -1,4 +1,4 @@
-//! The membrane obstacle problem (SPEC §1): find u ∈ H¹₀, u ≥ φ, minimising
+//! The membrane obstacle problem (docs/formulation.md §1): find u ∈ H¹₀, u ≥ φ, minimising
 //! ½∫|∇u|² − ∫g u; in mixed form (∇u, ∇v) − ⟨λ, v⟩ = (g, v), λ ≥ 0.
 //!
 //! Steps, as in deal.II's step-41: [`MembraneSystem::setup`] (spaces, Dirichlet
@@ -124,7 +124,7 @@ impl ModelSystem for MembraneSystem<'_> {
                         (g_vec, areas)
                     }
                     ElementPair::P2P1 | ElementPair::P2bPsri => {
-                        // g_i = ∫ φ μ_i; w_i = lumped P1 mass (SPEC §1: the Riesz map
+                        // g_i = ∫ φ μ_i; w_i = lumped P1 mass (docs/formulation.md §1: the Riesz map
                         // whose projection is a nodal max).
                         let g_vec =
                             assemble_linear(lam, &rule, |v, p| obstacle.value(p.x) * v.value);
@@ -193,7 +193,7 @@ impl ModelSystem for MembraneSystem<'_> {
         })
     }
 
-    /// Fields and coefficient vectors for the result file (SPEC §5).
+    /// Fields and coefficient vectors for the result file (docs/formulation.md §5).
     fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData {
         let u = self.u_coefficients(report);
         let mut data = ResultData {

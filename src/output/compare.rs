@@ -4,7 +4,8 @@
 //! A's (max-norm resp. L²) norm. The L²(ω) norm integrates the finite-element
 //! function of the difference exactly (degree-6 rule: exact for (P1⊕B3)²
 //! and (P2)²): vertex fields as P1, cell fields as P0, dof vectors in their
-//! own space (P0, P1, P2 or blocks of P1⊕B3, told from the length).
+//! own space: the `space` attribute of `/dofs/<name>` (P0, P1, P1b, P2, P2b,
+//! `^k` blocks), else told from the length (P0, P1, P2 or blocks of P1⊕B3).
 
 use super::ResultFile;
 use crate::assembly::quad_points;
@@ -118,13 +119,30 @@ fn l2_norm(mesh: &Mesh, blocks: &[(Element, Vec<f64>)]) -> f64 {
     sum.sqrt()
 }
 
+/// How a stored vector is split into FE blocks.
+#[derive(Debug, Clone, Copy)]
+enum Layout {
+    /// A vertex/cell field with its number of components.
+    Field(usize, Location),
+    /// A dof vector: k blocks of one element (its `space` attribute), or
+    /// (None) told from the length.
+    Dofs(Option<(Element, usize)>),
+}
+
 /// Splits a stored vector into FE blocks: a vertex/cell field by components,
-/// a dof vector by its length.
-fn blocks(
-    mesh: &Mesh,
-    values: &[f64],
-    field: Option<(usize, Location)>,
-) -> Option<Vec<(Element, Vec<f64>)>> {
+/// a dof vector by its space, else by its length.
+fn blocks(mesh: &Mesh, values: &[f64], layout: Layout) -> Option<Vec<(Element, Vec<f64>)>> {
+    let field = match layout {
+        Layout::Field(c, location) => Some((c, location)),
+        Layout::Dofs(Some((element, k))) => {
+            let n = Space::new(mesh, element).n_dofs();
+            if k == 0 || values.len() != k * n {
+                return None;
+            }
+            return Some(values.chunks(n).map(|c| (element, c.to_vec())).collect());
+        }
+        Layout::Dofs(None) => None,
+    };
     match field {
         Some((c, location)) => {
             let element = match location {
@@ -164,22 +182,29 @@ fn difference(
     name: String,
     a: &[f64],
     b: &[f64],
-    field: Option<(usize, Location)>,
+    layout: Layout,
 ) -> Result<Difference> {
     let diff: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
     let (ba, bb, bd) = match (
-        blocks(mesh, a, field),
-        blocks(mesh, b, field),
-        blocks(mesh, &diff, field),
+        blocks(mesh, a, layout),
+        blocks(mesh, b, layout),
+        blocks(mesh, &diff, layout),
     ) {
         (Some(x), Some(y), Some(z)) => (x, y, z),
         _ => {
             return Err(Error::output(
                 &mesh.source,
-                format!(
-                    "{name}: {} values are no P0, P1, P2 or P1⊕B3 vector on this mesh",
-                    a.len()
-                ),
+                match layout {
+                    Layout::Dofs(Some((element, k))) => format!(
+                        "{name}: {} values are no {} vector on this mesh",
+                        a.len(),
+                        super::space_tag(element, k)
+                    ),
+                    _ => format!(
+                        "{name}: {} values are no P0, P1, P2 or P1⊕B3 vector on this mesh",
+                        a.len()
+                    ),
+                },
             ))
         }
     };
@@ -240,7 +265,7 @@ pub fn compare_results(
             format!("fields/{}", fa.name),
             &fa.values,
             &fb.values,
-            Some((fa.components, fa.location)),
+            Layout::Field(fa.components, fa.location),
         )?);
     }
     for (name, va) in a.data.dofs.iter().filter(|(n, _)| wanted(n)) {
@@ -258,7 +283,33 @@ pub fn compare_results(
                 ),
             ));
         }
-        rows.push(difference(&mesh, format!("dofs/{name}"), va, vb, None)?);
+        let space = |r: &ResultFile| {
+            r.data
+                .dof_spaces
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, s)| s.clone())
+        };
+        let (sa, sb) = (space(a), space(b));
+        if let (Some(x), Some(y)) = (&sa, &sb) {
+            if x != y {
+                return Err(Error::output(
+                    pb,
+                    format!(
+                        "/dofs/{name} is in space {y}, in {} it is {x}",
+                        pa.display()
+                    ),
+                ));
+            }
+        }
+        let parsed = sa.or(sb).and_then(|s| super::parse_space_tag(&s));
+        rows.push(difference(
+            &mesh,
+            format!("dofs/{name}"),
+            va,
+            vb,
+            Layout::Dofs(parsed),
+        )?);
     }
     if let Some(ns) = names {
         for n in ns {

@@ -1,4 +1,4 @@
-//! The HDF5 result file of SPEC §5: writer (validated, atomic) and reader.
+//! The HDF5 result file of docs/formulation.md §5: writer (validated, atomic) and reader.
 //!
 //! Layout written by [`write_result`]:
 //!
@@ -427,7 +427,7 @@ fn temp_in(dir: &Path, file_name: &str) -> Res<tempfile::NamedTempFile> {
         .ctx(|| format!("creating a temporary file in {}", dir.display()))
 }
 
-/// Writes the result file `path` (SPEC §5 layout) and its companion
+/// Writes the result file `path` (docs/formulation.md §5 layout) and its companion
 /// `path.with_extension("xdmf")`, both atomically. See the module docs.
 ///
 /// Errors are [`Error::Output`] naming `path`; nothing is written unless all the
@@ -823,7 +823,7 @@ fn read_layout(file: &File) -> Res<ResultFile> {
     })
 }
 
-/// Reads a result file written by [`write_result`] (or any file with the SPEC §5
+/// Reads a result file written by [`write_result`] (or any file with the docs/formulation.md §5
 /// layout). Missing or malformed parts give [`Error::Output`] naming the file
 /// and the dataset; HDF5's own error printing is silenced.
 ///

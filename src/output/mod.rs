@@ -1,4 +1,4 @@
-//! Result files: the HDF5 layout of SPEC §5 (a contract other tools read),
+//! Result files: the HDF5 layout of docs/formulation.md §5 (a contract other tools read),
 //! its XDMF companion for ParaView/VisIt, and the reader behind `obstacle info`.
 //!
 //! Models fill a [`ResultData`]; this module knows nothing about membranes or shells.
@@ -45,7 +45,7 @@ pub enum Location {
     Cell,
 }
 
-/// Everything one solve writes. Names follow SPEC §5.
+/// Everything one solve writes. Names follow docs/formulation.md §5.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ResultData {
     /// `/fields/<name>`.

@@ -58,7 +58,7 @@ fn data_item(out: &mut String, indent: &str, dims: &str, number_type: &str, refe
 }
 
 /// Renders the XDMF document for a result file named `h5_file_name` (a bare file
-/// name, no directory) holding `mesh` and `data.fields` in the SPEC §5 layout.
+/// name, no directory) holding `mesh` and `data.fields` in the docs/formulation.md §5 layout.
 /// The caller has validated the data (field lengths match the mesh).
 pub fn render(h5_file_name: &str, mesh: &Mesh, data: &ResultData) -> String {
     let nv = mesh.vertices.len();

@@ -5,7 +5,7 @@
 //!     A x − Cᵀλ = F,     λ − max(0, λ − c ḡ(x)) = 0,     ḡ_i = (C x − g)_i / w_i,
 //! ```
 //!
-//! on the full system (SPEC §3 "beyond the thesis"). Given the active set
+//! on the full system (docs/formulation.md §3 "beyond the thesis"). Given the active set
 //! 𝒜_k = {i : λ_i − c_i ḡ_i > 0} of the previous iterate, step k solves
 //!
 //! ```text

@@ -1,5 +1,5 @@
 //! Accelerated projected gradient on the dual (FISTA, Beck–Teboulle) with
-//! adaptive restart (O'Donoghue–Candès), SPEC §3 "beyond the thesis".
+//! adaptive restart (O'Donoghue–Candès), docs/formulation.md §3 "beyond the thesis".
 //!
 //! The dual function of the contact problem, for λ ≥ 0, is
 //!
@@ -8,7 +8,7 @@
 //! ```
 //!
 //! concave, with gradient g − C x(λ) = −W ḡ(x(λ)). In the W inner product
-//! (the L² Riesz map of the multiplier space: the mean form of SPEC §3) the
+//! (the L² Riesz map of the multiplier space: the mean form of docs/formulation.md §3) the
 //! projected gradient step with step 1/L is the Uzawa step
 //! λ ← max(0, λ − ḡ/L), and L = s_max(W⁻¹ C A⁻¹ Cᵀ), estimated by Lanczos
 //! ([`estimate_dual_spectrum`], a Ritz value from below) and inflated by

@@ -1,4 +1,4 @@
-//! The measures every solver reports (SPEC §4), and the per-iteration history.
+//! The measures every solver reports (docs/formulation.md §4), and the per-iteration history.
 
 use super::ContactProblem;
 use crate::assembly::{mat_t_vec, mat_vec, norm2, norm_inf};

@@ -2,7 +2,7 @@
 //! reusing the one factorisation of A (one solve per step).
 //!
 //! D is the Riesz map of the dual step: the weights W for the mean form,
-//! the identity for the integral form (SPEC §3). S is self-adjoint in the
+//! the identity for the integral form (docs/formulation.md §3). S is self-adjoint in the
 //! D inner product, so Lanczos runs on D^{-1/2} C A⁻¹ Cᵀ D^{-1/2}.
 //! Uzawa with a fixed step converges for 0 < α < 2/s_max.
 

@@ -1,4 +1,4 @@
-//! The thesis' Uzawa iteration (Algorithm 1, "second splitting", SPEC §3):
+//! The thesis' Uzawa iteration (Algorithm 1, "second splitting", docs/formulation.md §3):
 //! A is factorised once; iteration k solves A x^k = F + Cᵀλ^{k−1} and takes
 //! a projected dual step
 //!

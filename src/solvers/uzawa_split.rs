@@ -1,4 +1,4 @@
-//! The thesis' "first splitting" (Ch. 4, scheme (4.25); SPEC §3): for the
+//! The thesis' "first splitting" (Ch. 4, scheme (4.25); docs/formulation.md §3): for the
 //! saddle matrix A = [[K, Bᵀ], [B, 0]] (unknowns x = (U, ψ), ψ the equality
 //! multiplier, here the shell's tangency multiplier) only the primal block K
 //! is factorised (Cholesky: K_ρ is SPD for ρ > 0 on the clamped space), and

@@ -1,4 +1,4 @@
-//! Midsurface geometry of the Cartesian Naghdi shell (SPEC §2, thesis Ch. 1–2).
+//! Midsurface geometry of the Cartesian Naghdi shell (docs/formulation.md §2, thesis Ch. 1–2).
 //!
 //! A [`Chart`] φ: ω ⊂ R² → R³ maps the reference domain onto the midsurface.
 //! [`Chart::at`] evaluates, at one point x = (x, y) of ω, everything the
@@ -284,7 +284,7 @@ impl SurfacePoint {
     }
 }
 
-/// The obstacle function Φ = (ε/2 a3 − φ)·e3 of SPEC §2 (the rigid plane fills
+/// The obstacle function Φ = (ε/2 a3 − φ)·e3 of docs/formulation.md §2 (the rigid plane fills
 /// z < 0): the constraint is (u − ε/2 r)·e3 ≥ Φ, and Φ ≤ 0 (thesis (2.2))
 /// says the lower face of the undeformed shell lies above the plane.
 pub fn obstacle_function(p: &SurfacePoint, thickness: f64) -> f64 {

@@ -1,4 +1,4 @@
-//! The Naghdi shell in Cartesian form (Blouza–Le Dret, SPEC §2): midsurface
+//! The Naghdi shell in Cartesian form (Blouza–Le Dret, docs/formulation.md §2): midsurface
 //! geometry, material, obstacle function ([`geometry`]); the forms a_ρ, b, c,
 //! L and the discrete Problem 9 as an algebraic problem ([`forms`]); the model
 //! as the pipeline runs it ([`system`]).

@@ -1,10 +1,10 @@
-//! The Naghdi shell as a model of the pipeline (SPEC §2, thesis Problem 9),
+//! The Naghdi shell as a model of the pipeline (docs/formulation.md §2, thesis Problem 9),
 //! with either shell element (`p1b-p0`, `p2b-psri`: forms.rs):
 //! [`NaghdiSystem::setup`] checks the chart and the obstacle on the mesh,
 //! resolves the boundary conditions per part and component and numbers the
 //! fixed dofs; `assemble` builds exactly the effects the scene
 //! declares (body force, edge loads, tangency, contact); `results` turns the
-//! solver's answer into the fields of SPEC §5.
+//! solver's answer into the fields of docs/formulation.md §5.
 //!
 //! Two reductions keep the algebra to what the scene needs:
 //! * no obstacle: no λ block at all, the pipeline does one linear solve;
