@@ -360,3 +360,56 @@ fn membrane_and_bending_patch_tests() {
         assert!(worst < 1e-11 * scale, "bending patch, t = {t}: {worst:e}");
     }
 }
+
+/// Every contact solver runs on the p2b-psri problem (P1 multipliers, SPD K)
+/// and finds the same contact force as the active set (n = 8).
+#[test]
+fn every_solver_on_the_new_element() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = ["mesh.n=8".to_string(), "output.plots=[]".into()];
+    let reference = attr(&run(HYPAR, dir.path(), &base), "contact_force");
+    let methods: [&[&str]; 4] = [
+        &["solver.method=dual-accelerated", "solver.tol=1e-9"],
+        &["solver.method=active-set", "solver.nested=true"],
+        &[
+            "solver.method=uzawa",
+            "solver.alpha_factor=0.9",
+            "solver.step_form=mean",
+            "solver.tol=1e-6",
+            "solver.max_iter=100000",
+        ],
+        &[
+            "solver.method=uzawa-split",
+            "solver.alpha=auto",
+            "solver.step_form=mean",
+            "solver.tol=1e-6",
+            "solver.max_iter=100000",
+        ],
+    ];
+    for m in methods {
+        let mut o = base.to_vec();
+        o.extend(m.iter().map(|s| s.to_string()));
+        let s = run(HYPAR, dir.path(), &o);
+        assert!(s.converged, "{m:?}: {}", s.stop_reason);
+        let force = attr(&s, "contact_force");
+        assert!(
+            (force / reference - 1.0).abs() < 1e-4,
+            "{m:?}: ∫λ = {force} vs active set {reference}"
+        );
+    }
+}
+
+/// The thinnest hard case (ε = 8e-4) in contact with p2b-psri: the active set
+/// converges and the shell lies on the plane over nearly all of ω.
+#[test]
+fn thin_shell_in_contact() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = run(
+        "pipelines/scenes/hard/thin-0.0008-contact.toml",
+        dir.path(),
+        &["element=p2b-psri".into(), "output.plots=[]".into()],
+    );
+    assert!(s.converged && s.measures.kkt < 1e-10, "{}", s.stop_reason);
+    let area = attr(&s, "contact_area");
+    assert!(area > 9000.0, "contact area {area} of 10⁴");
+}
