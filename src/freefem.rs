@@ -441,16 +441,7 @@ pub fn script_args(
                 "-f3".into(),
                 f(load[2]),
             ]);
-            if let Some(o) = &scene.obstacle {
-                if o.shape != ObstacleShape::RigidPlane {
-                    return Err(scene_error(
-                        scene,
-                        "obstacle.shape",
-                        "the shell's obstacle is the rigid plane",
-                    ));
-                }
-                a.extend(["-level".into(), f(o.level())]);
-            }
+            a.extend(plane_level_args(scene)?);
         }
     }
     match plan {
@@ -533,17 +524,21 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
     if !fix.is_empty() {
         a.extend(["-fix".into(), fix]);
     }
-    if let Some(o) = &scene.obstacle {
-        if o.shape != ObstacleShape::RigidPlane {
-            return Err(scene_error(
-                scene,
-                "obstacle.shape",
-                "the shell's obstacle is the rigid plane",
-            ));
-        }
-        a.extend(["-level".into(), f(o.level())]);
-    }
+    a.extend(plane_level_args(scene)?);
     Ok(a)
+}
+
+/// `-level Z` of a shell scene's rigid plane (nothing without an obstacle).
+fn plane_level_args(scene: &Scene) -> Result<Vec<String>> {
+    match &scene.obstacle {
+        None => Ok(Vec::new()),
+        Some(o) if o.shape != ObstacleShape::RigidPlane => Err(scene_error(
+            scene,
+            "obstacle.shape",
+            "the shell's obstacle is the rigid plane",
+        )),
+        Some(o) => Ok(vec!["-level".into(), format!("{:e}", o.level())]),
+    }
 }
 
 /// The spaces of u and θ of the PSRI element (the Rust layout's).
