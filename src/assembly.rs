@@ -9,6 +9,9 @@ use crate::quadrature::TriangleRule;
 use crate::space::{Element, LocalBasis, Space, TriangleGeometry, MAX_LOCAL};
 use faer::sparse::{SparseColMat, Triplet};
 
+/// The sparse kernels live in linalg.rs; re-exported for the FE users.
+pub use crate::linalg::{mat_t_vec, mat_vec, norm2, norm_inf};
+
 /// A basis function (or an FE function) at one quadrature point.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ShapeValue {
@@ -316,35 +319,4 @@ pub fn eliminate(
         entries,
     };
     (reduced, shift)
-}
-
-/// y = A x.
-pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
-    let mut y = vec![0.0; a.nrows()];
-    let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
-    for j in 0..a.ncols() {
-        let xj = x[j];
-        if xj != 0.0 {
-            for k in cp[j]..cp[j + 1] {
-                y[ri[k]] += val[k] * xj;
-            }
-        }
-    }
-    y
-}
-
-/// y = Aᵀ x.
-pub fn mat_t_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
-    let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
-    (0..a.ncols())
-        .map(|j| (cp[j]..cp[j + 1]).map(|k| val[k] * x[ri[k]]).sum())
-        .collect()
-}
-
-pub fn norm_inf(x: &[f64]) -> f64 {
-    x.iter().fold(0.0, |m, v| m.max(v.abs()))
-}
-
-pub fn norm2(x: &[f64]) -> f64 {
-    x.iter().map(|v| v * v).sum::<f64>().sqrt()
 }

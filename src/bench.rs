@@ -729,7 +729,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
 }
 
 fn write(path: &Path, text: &str) -> Result<()> {
-    std::fs::write(path, text).map_err(|e| Error::output(path, format!("cannot write: {e}")))
+    crate::output::write_text_atomically(path, text)
 }
 
 /// Seconds with three significant digits.

@@ -303,7 +303,7 @@ pub fn command(dir: &Path, out_dir: &Path, set: &[String]) -> Result<()> {
     let md = table(&rows);
     print!("{md}");
     let path = out_dir.join("hard.md");
-    std::fs::write(&path, &md).map_err(|e| Error::output(&path, format!("cannot write: {e}")))?;
+    crate::output::write_text_atomically(&path, &md)?;
     let bad: Vec<&str> = rows
         .iter()
         .filter(|r| !r.as_expected())

@@ -2,7 +2,6 @@
 //! solve of an iteration. The symbolic analysis is kept so a matrix with the
 //! same pattern can be refactorised numerically only.
 
-use crate::assembly::{mat_vec, norm_inf};
 use crate::error::{Error, Result};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
@@ -676,4 +675,37 @@ impl RegularizedLdlt {
             }
         }
     }
+}
+
+/// y = A x.
+pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
+    let mut y = vec![0.0; a.nrows()];
+    let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    for j in 0..a.ncols() {
+        let xj = x[j];
+        if xj != 0.0 {
+            for k in cp[j]..cp[j + 1] {
+                y[ri[k]] += val[k] * xj;
+            }
+        }
+    }
+    y
+}
+
+/// y = Aᵀ x.
+pub fn mat_t_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
+    let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    (0..a.ncols())
+        .map(|j| (cp[j]..cp[j + 1]).map(|k| val[k] * x[ri[k]]).sum())
+        .collect()
+}
+
+/// max |x_i|.
+pub fn norm_inf(x: &[f64]) -> f64 {
+    x.iter().fold(0.0, |m, v| m.max(v.abs()))
+}
+
+/// (Σ x_i²)^(1/2).
+pub fn norm2(x: &[f64]) -> f64 {
+    x.iter().map(|v| v * v).sum::<f64>().sqrt()
 }

@@ -228,5 +228,5 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {
-    std::fs::write(path, text).map_err(|e| Error::output(path, format!("cannot write: {e}")))
+    obstacle_fem::output::write_text_atomically(path, text)
 }

@@ -484,15 +484,7 @@ fn render<F: Figure>(path: &Path, format: Format, fig: &F) -> Result<()> {
             ));
         }
     }
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(tmp.path(), std::fs::Permissions::from_mode(0o644))
-            .map_err(|e| Error::output(path, format!("cannot set the file mode: {e}")))?;
-    }
-    tmp.persist(path)
-        .map_err(|e| Error::output(path, format!("cannot rename the figure into place: {e}")))?;
-    Ok(())
+    crate::output::persist_readable(tmp, path)
 }
 
 // ---------------------------------------------------------------------------

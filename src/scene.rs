@@ -8,6 +8,8 @@
 
 use crate::error::{Error, Result};
 use crate::models::naghdi::geometry::{Chart, Material};
+/// The solver vocabulary the scene's strings map onto (it belongs to solvers/).
+pub use crate::solvers::{DualNorm, StepForm, StopRule};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -356,35 +358,6 @@ pub enum Alpha {
 #[serde(rename_all = "kebab-case")]
 pub enum AlphaKeyword {
     Auto,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum StepForm {
-    /// λ_T ← max(0, λ_T − α ḡ_T): the L² Riesz map of the multiplier space.
-    Mean,
-    /// λ_T ← max(0, λ_T − α |T| ḡ_T): the Euclidean step on coefficients.
-    Integral,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum StopRule {
-    /// Stop when the relative KKT measures are below `tol`.
-    #[default]
-    Kkt,
-    /// Stop on the thesis criterion ‖λ^{k+1} − λ^k‖ < thesis_tol.
-    Thesis,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum DualNorm {
-    /// L²(Ω) norm of the multiplier function.
-    #[default]
-    L2,
-    /// Max norm of the coefficients.
-    Inf,
 }
 
 #[derive(Debug, Clone, Deserialize, Default)]

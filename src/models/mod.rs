@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use crate::output::{Field, Location, ResultData};
 use crate::scene::Scene;
-use crate::solvers::uzawa::Probe;
+use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use membrane::ExactErrors;
 

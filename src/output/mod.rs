@@ -243,3 +243,37 @@ pub fn parse_space_tag(tag: &str) -> Option<(crate::space::Element, usize)> {
     };
     Some((crate::space::Element::from_tag(name)?, blocks))
 }
+
+/// Renames a finished temporary file into `path` with mode 0644 (tempfile
+/// creates 0600): the one way every output file appears, whole or not at all.
+pub fn persist_readable(
+    tmp: tempfile::NamedTempFile,
+    path: &std::path::Path,
+) -> crate::error::Result<()> {
+    use crate::error::Error;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(tmp.path(), std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| Error::output(path, format!("cannot set the file mode: {e}")))?;
+    }
+    tmp.persist(path)
+        .map_err(|e| Error::output(path, format!("cannot rename into place: {e}")))?;
+    Ok(())
+}
+
+/// Writes `text` to `path` atomically: a temporary file beside it, renamed
+/// into place ([`persist_readable`]).
+pub fn write_text_atomically(path: &std::path::Path, text: &str) -> crate::error::Result<()> {
+    use crate::error::Error;
+    use std::io::Write as _;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => std::path::Path::new("."),
+    };
+    let mut tmp = tempfile::NamedTempFile::new_in(dir)
+        .map_err(|e| Error::output(path, format!("cannot create a temporary file: {e}")))?;
+    tmp.write_all(text.as_bytes())
+        .map_err(|e| Error::output(path, format!("cannot write: {e}")))?;
+    persist_readable(tmp, path)
+}

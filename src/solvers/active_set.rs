@@ -65,11 +65,11 @@
 use super::measures::{kkt_measures, History, KktMeasures};
 use super::uzawa::solve_linear;
 use super::{ContactProblem, SolveReport};
-use crate::assembly::{mat_vec, norm_inf};
 use crate::error::{Error, Result};
 use crate::linalg::{
     factorize_checked, first_non_finite, refine, MatrixKind, ReusableFactorization, Solves,
 };
+use crate::linalg::{mat_vec, norm_inf};
 use crate::progress::IterationProgress;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::time::Instant;

@@ -33,11 +33,11 @@ use super::measures::{kkt_measures, History, KktMeasures};
 use super::spectrum::estimate_dual_spectrum;
 use super::uzawa::solve_linear;
 use super::{ContactProblem, SolveReport};
-use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
 use crate::linalg::{factorize_checked, Solves};
+use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::progress::IterationProgress;
-use crate::scene::StepForm;
+use crate::solvers::StepForm;
 use std::time::Instant;
 
 /// When FISTA resets its momentum.

@@ -1,8 +1,8 @@
 //! The measures every solver reports (docs/formulation.md §4), and the per-iteration history.
 
 use super::ContactProblem;
-use crate::assembly::{mat_t_vec, mat_vec, norm2, norm_inf};
-use crate::scene::DualNorm;
+use crate::linalg::{mat_t_vec, mat_vec, norm2, norm_inf};
+use crate::solvers::DualNorm;
 
 /// KKT measures of an iterate (x, λ). Absolute values, and the relative
 /// ones that the tolerance applies to.

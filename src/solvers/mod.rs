@@ -22,6 +22,7 @@ pub mod uzawa_split;
 
 use crate::linalg::MatrixKind;
 use faer::sparse::SparseColMat;
+use serde::Deserialize;
 
 pub use measures::{History, KktMeasures};
 
@@ -117,3 +118,41 @@ pub(crate) fn check_finite(
         )),
     }
 }
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StepForm {
+    /// λ_T ← max(0, λ_T − α ḡ_T): the L² Riesz map of the multiplier space.
+    Mean,
+    /// λ_T ← max(0, λ_T − α |T| ḡ_T): the Euclidean step on coefficients.
+    Integral,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum StopRule {
+    /// Stop when the relative KKT measures are below `tol`.
+    #[default]
+    Kkt,
+    /// Stop on the thesis criterion ‖λ^{k+1} − λ^k‖ < thesis_tol.
+    Thesis,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum DualNorm {
+    /// L²(Ω) norm of the multiplier function.
+    #[default]
+    L2,
+    /// Max norm of the coefficients.
+    Inf,
+}
+
+/// A model-specific scalar recorded every iteration (e.g. the gap at the origin).
+pub struct Probe {
+    pub name: String,
+    /// Evaluated on (x, λ) after each iteration.
+    pub evaluate: ProbeFn,
+}
+
+pub type ProbeFn = Box<dyn Fn(&[f64], &[f64]) -> f64>;

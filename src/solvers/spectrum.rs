@@ -7,9 +7,9 @@
 //! Uzawa with a fixed step converges for 0 < α < 2/s_max.
 
 use super::ContactProblem;
-use crate::assembly::{mat_t_vec, mat_vec};
 use crate::linalg::Factorization;
-use crate::scene::StepForm;
+use crate::linalg::{mat_t_vec, mat_vec};
+use crate::solvers::StepForm;
 
 /// Ritz estimates of the extreme eigenvalues of S.
 #[derive(Debug, Clone, Copy)]

@@ -14,11 +14,11 @@ use super::check_finite;
 use super::measures::{dual_step_norm, kkt_measures, History};
 use super::spectrum::estimate_dual_spectrum;
 use super::{ContactProblem, SolveReport};
-use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
 use crate::linalg::Factorization;
+use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::progress::IterationProgress;
-use crate::scene::{DualNorm, StepForm, StopRule};
+use crate::solvers::{DualNorm, Probe, StepForm, StopRule};
 use std::time::Instant;
 
 #[derive(Debug, Clone)]
@@ -33,15 +33,6 @@ pub struct UzawaOptions {
     pub dual_norm: DualNorm,
     pub show_progress: bool,
 }
-
-/// A model-specific scalar recorded every iteration (e.g. the gap at the origin).
-pub struct Probe {
-    pub name: String,
-    /// Evaluated on (x, λ) after each iteration.
-    pub evaluate: ProbeFn,
-}
-
-pub type ProbeFn = Box<dyn Fn(&[f64], &[f64]) -> f64>;
 
 /// One linear solve: the problem without contact.
 pub fn solve_linear(

@@ -56,11 +56,11 @@ use super::dual_accelerated::StepGrowth;
 use super::measures::{kkt_measures, History, KktMeasures};
 use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, SolveReport};
-use crate::assembly::{mat_t_vec, mat_vec, norm_inf};
 use crate::error::{Error, Result};
 use crate::linalg::{factorize_checked, MatrixKind, Solves};
+use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::progress::IterationProgress;
-use crate::scene::StepForm;
+use crate::solvers::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
 use std::time::Instant;
 

@@ -25,7 +25,7 @@ use crate::models::{contact_fields, named_boundary_tags, vertex_field, ModelSyst
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::quadrature::TriangleRule;
 use crate::scene::{BoundaryCondition, BoundarySpec, ElementPair, Scene, ShellSpec};
-use crate::solvers::uzawa::Probe;
+use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
 use nalgebra::Vector3;
