@@ -3,33 +3,16 @@
 //! file, and an existing result is never clobbered by a failed run. Same
 //! input gives bit-identical result datasets.
 
+mod common;
+
+use common::{run_obstacle, run_obstacle_env, text};
+
 use obstacle_fem::output::{read_result, AttrValue, ResultFile};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 const MEMBRANE: &str = "pipelines/scenes/obstacle-disk.toml";
 const SHELL: &str = "pipelines/scenes/naghdi-hypar.toml";
-
-fn obstacle_env(args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_obstacle"));
-    c.args(args).env("CI", "1");
-    for (k, v) in env {
-        c.env(k, v);
-    }
-    c.output().expect("the obstacle binary runs")
-}
-
-fn obstacle(args: &[&str]) -> Output {
-    obstacle_env(args, &[])
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 /// The run fails with one `error:` line containing every expected word,
 /// without a panic, and `out` (and its companions) do not exist.
@@ -96,10 +79,10 @@ fn malformed_toml_and_unknown_keys() {
     let o_str = out.to_str().unwrap();
     let broken = dir.path().join("broken.toml");
     std::fs::write(&broken, "name = \"x\"\nmodel = [\n").unwrap();
-    let o = obstacle(&["solve", broken.to_str().unwrap(), "--out", o_str]);
+    let o = run_obstacle(&["solve", broken.to_str().unwrap(), "--out", o_str]);
     assert_clear_failure(&o, &["broken.toml", "(syntax)"], &out, "malformed TOML");
     let missing = dir.path().join("missing.toml");
-    let o = obstacle(&["solve", missing.to_str().unwrap(), "--out", o_str]);
+    let o = run_obstacle(&["solve", missing.to_str().unwrap(), "--out", o_str]);
     assert_clear_failure(&o, &["missing.toml", "cannot read"], &out, "missing scene");
     for (set, field) in [
         ("shell.youngs=1", "youngs"),
@@ -110,7 +93,7 @@ fn malformed_toml_and_unknown_keys() {
         ("mesh.n=1.5", "mesh.n"),
         ("solver.method=newton", "solver.method"),
     ] {
-        let o = obstacle(&["solve", SHELL, "--set", set, "--out", o_str]);
+        let o = run_obstacle(&["solve", SHELL, "--set", set, "--out", o_str]);
         assert_clear_failure(&o, &["naghdi-hypar.toml", field], &out, set);
     }
 }
@@ -138,7 +121,7 @@ fn out_of_range_values_name_the_field() {
         (MEMBRANE, "solver.alpha=0", &["solver.alpha", "> 0"]),
     ];
     for (scene, set, expected) in cases {
-        let o = obstacle(&["solve", scene, "--set", set, "--out", o_str]);
+        let o = run_obstacle(&["solve", scene, "--set", set, "--out", o_str]);
         assert_clear_failure(&o, expected, &out, set);
     }
     // α as a multiple of the stability bound: > 0, ≤ 100, Uzawa only, not with alpha.
@@ -151,7 +134,7 @@ fn out_of_range_values_name_the_field() {
         for e in extra {
             args.extend(["--set", e]);
         }
-        let o = obstacle(&args);
+        let o = run_obstacle(&args);
         assert_clear_failure(&o, &["solver.alpha_factor", expected], &out, extra[0]);
     }
 }
@@ -233,7 +216,7 @@ fn nan_and_inf_anywhere_are_rejected() {
                 args.extend(["--set", e]);
             }
             args.extend(["--set", &set]);
-            let o = obstacle(&args);
+            let o = run_obstacle(&args);
             // "must be a finite number, got NaN" or "must lie in [0, 1/2), got NaN".
             let shown = if bad == "nan" { "NaN" } else { "inf" };
             assert_clear_failure(&o, &[field, shown], &out, &set);
@@ -245,9 +228,9 @@ fn nan_and_inf_anywhere_are_rejected() {
         .replace("alpha = 0.01", "alpha_factor = nan");
     let scene = dir.path().join("factor.toml");
     std::fs::write(&scene, text.replace("../../meshes", "/nonexistent")).unwrap();
-    let o = obstacle(&["solve", scene.to_str().unwrap(), "--out", o_str]);
+    let o = run_obstacle(&["solve", scene.to_str().unwrap(), "--out", o_str]);
     assert_clear_failure(&o, &["solver.alpha_factor", "finite"], &out, "alpha_factor");
-    let o = obstacle(&[
+    let o = run_obstacle(&[
         "solve",
         scene.to_str().unwrap(),
         "--set",
@@ -273,7 +256,7 @@ fn missing_or_failing_gmsh() {
     // No gmsh on PATH.
     let empty = dir.path().join("empty-bin");
     std::fs::create_dir(&empty).unwrap();
-    let o = obstacle_env(
+    let o = run_obstacle_env(
         &["solve", SHELL, "--out", o_str],
         &[("PATH", empty.to_str().unwrap())],
     );
@@ -282,7 +265,7 @@ fn missing_or_failing_gmsh() {
     let geo = dir.path().join("bad.geo");
     std::fs::write(&geo, "Point(1) = {0, 0, 0;\nthis is not gmsh\n").unwrap();
     let set = format!("mesh.geo=\"{}\"", geo.display());
-    let o = obstacle(&["solve", SHELL, "--set", &set, "--out", o_str]);
+    let o = run_obstacle(&["solve", SHELL, "--set", &set, "--out", o_str]);
     assert_clear_failure(&o, &["gmsh", "bad.geo"], &out, "bad .geo");
     // A .geo without triangles (a curve only).
     std::fs::write(
@@ -290,7 +273,7 @@ fn missing_or_failing_gmsh() {
         "Point(1) = {0, 0, 0};\nPoint(2) = {1, 0, 0};\nLine(1) = {1, 2};\n",
     )
     .unwrap();
-    let o = obstacle(&["solve", SHELL, "--set", &set, "--out", o_str]);
+    let o = run_obstacle(&["solve", SHELL, "--set", &set, "--out", o_str]);
     assert_clear_failure(&o, &["bad.geo"], &out, "geo without a surface");
 }
 
@@ -364,7 +347,7 @@ fn invalid_meshes_are_rejected() {
             MEMBRANE,
             &format!("file = \"{}\"", msh.display()),
         );
-        let o = obstacle(&[
+        let o = run_obstacle(&[
             "solve",
             scene.to_str().unwrap(),
             "--set",
@@ -391,7 +374,7 @@ fn invalid_meshes_are_rejected() {
 fn singular_chart_is_rejected() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("r.h5");
-    let o = obstacle(&[
+    let o = run_obstacle(&[
         "solve",
         SHELL,
         "--set",
@@ -414,7 +397,7 @@ fn unwritable_output_paths() {
         PathBuf::from("/proc/forbidden/r.h5"),
         dir.path().join("r.txt"),
     ] {
-        let o = obstacle(&[
+        let o = run_obstacle(&[
             "solve",
             MEMBRANE,
             "--set",
@@ -448,7 +431,7 @@ fn solve_small(out: &Path, extra: &[&str]) -> Output {
     for e in extra {
         args.extend(["--set", e]);
     }
-    obstacle(&args)
+    run_obstacle(&args)
 }
 
 #[test]
@@ -461,7 +444,7 @@ fn truncated_or_foreign_hdf5_given_to_info() {
     let truncated = dir.path().join("truncated.h5");
     for cut in [bytes.len() / 2, 600, 8] {
         std::fs::write(&truncated, &bytes[..cut]).unwrap();
-        let o = obstacle(&["info", truncated.to_str().unwrap()]);
+        let o = run_obstacle(&["info", truncated.to_str().unwrap()]);
         let t = text(&o);
         assert!(!o.status.success(), "cut {cut}: {t}");
         assert!(!t.contains("panicked"), "{t}");
@@ -478,7 +461,7 @@ fn truncated_or_foreign_hdf5_given_to_info() {
             .write(&[1.0, 2.0, 3.0])
             .unwrap();
     }
-    let o = obstacle(&["info", foreign.to_str().unwrap()]);
+    let o = run_obstacle(&["info", foreign.to_str().unwrap()]);
     let t = text(&o);
     assert!(!o.status.success(), "{t}");
     assert!(!t.contains("panicked"), "{t}");
@@ -489,7 +472,7 @@ fn truncated_or_foreign_hdf5_given_to_info() {
             ["compare", good.to_str().unwrap(), bad.to_str().unwrap()],
             ["compare", bad.to_str().unwrap(), good.to_str().unwrap()],
         ] {
-            let o = obstacle(&args);
+            let o = run_obstacle(&args);
             let t = text(&o);
             assert!(!o.status.success(), "{args:?}: {t}");
             assert!(!t.contains("panicked"), "{t}");
@@ -501,7 +484,7 @@ fn truncated_or_foreign_hdf5_given_to_info() {
     let empty = dir.path().join("empty.h5");
     std::fs::write(&empty, b"").unwrap();
     for p in [&empty, &dir.path().to_path_buf()] {
-        let o = obstacle(&["info", p.to_str().unwrap()]);
+        let o = run_obstacle(&["info", p.to_str().unwrap()]);
         let t = text(&o);
         assert!(!o.status.success() && !t.contains("panicked"), "{t}");
     }
@@ -599,7 +582,7 @@ fn same_input_gives_bit_identical_datasets() {
             for e in extra {
                 args.extend(["--set", e]);
             }
-            let o = obstacle(&args);
+            let o = run_obstacle(&args);
             assert!(o.status.success(), "{}", text(&o));
             files.push(datasets(&read_result(&out).unwrap()));
         }
@@ -621,7 +604,7 @@ fn freefem_missing_when_a_comparison_is_asked() {
         .expect("gmsh on PATH");
     std::os::unix::fs::symlink(gmsh, bin.join("gmsh")).unwrap();
     let out = dir.path().join("ff.h5");
-    let o = obstacle_env(
+    let o = run_obstacle_env(
         &[
             "freefem",
             MEMBRANE,

@@ -1,32 +1,19 @@
 //! The `obstacle` command line: a user's mesh file, `info`, and clear errors
 //! (file, field, reason; non-zero exit; nothing half-written).
 
+mod common;
+
+use common::{run_obstacle, text};
+
 use std::path::Path;
-use std::process::{Command, Output};
 
 const SCENE: &str = "pipelines/scenes/obstacle-disk.toml";
-
-fn obstacle(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_obstacle"))
-        .args(args)
-        .env("CI", "1")
-        .output()
-        .expect("the obstacle binary runs")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 #[test]
 fn solve_on_a_users_mesh_file_and_info() {
     let dir = tempfile::tempdir().unwrap();
     let msh = dir.path().join("user.msh");
-    let o = obstacle(&[
+    let o = run_obstacle(&[
         "mesh",
         SCENE,
         "--set",
@@ -38,7 +25,7 @@ fn solve_on_a_users_mesh_file_and_info() {
     assert!(text(&o).contains("vertices"));
     // mesh.file replaces geo (relative paths are relative to the scene; absolute here).
     let out = dir.path().join("r.h5");
-    let o = obstacle(&[
+    let o = run_obstacle(&[
         "solve",
         SCENE,
         "--set",
@@ -58,7 +45,7 @@ fn solve_on_a_users_mesh_file_and_info() {
         .replace("h = 0.1 ", "# h = 0.1 ");
     let scene = dir.path().join("user.toml");
     std::fs::write(&scene, scene_text).unwrap();
-    let o = obstacle(&[
+    let o = run_obstacle(&[
         "solve",
         scene.to_str().unwrap(),
         "--set",
@@ -68,7 +55,7 @@ fn solve_on_a_users_mesh_file_and_info() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(out.exists() && out.with_extension("xdmf").exists());
-    let o = obstacle(&["info", out.to_str().unwrap()]);
+    let o = run_obstacle(&["info", out.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     for word in ["lambda", "gap_mean", "kkt", "iterations", "converged"] {
@@ -100,7 +87,7 @@ fn bad_input_is_one_clear_error_and_writes_nothing() {
     for (args, expected) in cases {
         let mut all = vec!["solve", SCENE, "--out", o_str];
         all.extend_from_slice(args);
-        let o = obstacle(&all);
+        let o = run_obstacle(&all);
         let t = text(&o);
         assert!(!o.status.success(), "{args:?} should fail: {t}");
         assert!(t.starts_with("error: ") || t.contains("\nerror: "), "{t}");
@@ -111,7 +98,7 @@ fn bad_input_is_one_clear_error_and_writes_nothing() {
         assert!(!out.exists(), "{args:?} left a result file");
     }
     // An unwritable output folder, and a foreign file given to `info`.
-    let o = obstacle(&[
+    let o = run_obstacle(&[
         "solve",
         SCENE,
         "--set",
@@ -126,7 +113,7 @@ fn bad_input_is_one_clear_error_and_writes_nothing() {
     );
     let foreign = dir.path().join("foreign.h5");
     std::fs::write(&foreign, b"not hdf5 at all").unwrap();
-    let o = obstacle(&["info", foreign.to_str().unwrap()]);
+    let o = run_obstacle(&["info", foreign.to_str().unwrap()]);
     assert!(
         !o.status.success() && text(&o).contains("foreign.h5"),
         "{}",

@@ -10,9 +10,9 @@
 
 mod common;
 
-use common::{manifest_path, obstacle, obstacle_output};
+use common::{manifest_path, obstacle, obstacle_output, solver_attr};
 use obstacle_fem::output::compare::compare_results;
-use obstacle_fem::output::{read_result, AttrValue, ResultFile};
+use obstacle_fem::output::{read_result, AttrValue};
 use std::path::{Path, PathBuf};
 
 const K: usize = 100;
@@ -58,15 +58,6 @@ fn freefem(dir: &Path, name: &str, scene_name: &str, extra: &[String]) -> PathBu
     args.extend(["--out".into(), out.display().to_string()]);
     obstacle(&args);
     out
-}
-
-fn attr<'a>(r: &'a ResultFile, name: &str) -> &'a AttrValue {
-    &r.data
-        .solver_attrs
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no /solver attribute {name}"))
-        .1
 }
 
 /// Both files: same vertices, triangles and in-triangle order; every common
@@ -120,13 +111,13 @@ fn freefem_command_matches_rust_after_k_iterations() {
         // Both read the same mesh file.
         let r = read_result(&ff).unwrap();
         assert_eq!(
-            attr(&r, "algorithm"),
+            solver_attr(&r, "algorithm"),
             &AttrValue::Str("uzawa (FreeFEM)".into())
         );
-        assert_eq!(attr(&r, "iterations"), &AttrValue::I64(K as i64));
+        assert_eq!(solver_attr(&r, "iterations"), &AttrValue::I64(K as i64));
         assert_eq!(
-            attr(&r, "alpha"),
-            attr(&read_result(&rust).unwrap(), "alpha"),
+            solver_attr(&r, "alpha"),
+            solver_attr(&read_result(&rust).unwrap(), "alpha"),
             "α = {alpha}: the same step on both sides"
         );
         let fields = ["u", "lambda", "gap_mean", "phi", "contact"];
@@ -248,7 +239,10 @@ fn converged_solutions_agree_to_the_stopping_tolerance() {
             &sets(&ff_set),
         );
         let r = read_result(&ff).unwrap();
-        assert_eq!(attr(&r, "stop_reason"), &AttrValue::Str("thesis".into()));
+        assert_eq!(
+            solver_attr(&r, "stop_reason"),
+            &AttrValue::Str("thesis".into())
+        );
         assert_agree(
             &rust,
             &ff,

@@ -9,9 +9,12 @@
 
 mod common;
 
-use common::{check_success, max_abs, obstacle, read_ff_mesh, read_info, read_numbers, rel_diff};
+use common::{
+    check_success, dofs, field, max_abs, obstacle, read_ff_mesh, read_info, read_numbers, rel_diff,
+    solver_attr,
+};
 use obstacle_fem::mesh::Mesh;
-use obstacle_fem::output::{read_result, AttrValue, ResultFile};
+use obstacle_fem::output::{read_result, AttrValue};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
@@ -45,33 +48,6 @@ fn info_f64(info: &HashMap<String, String>, key: &str) -> f64 {
         .unwrap_or_else(|| panic!("FreeFEM info has no `{key}`"))
         .parse()
         .unwrap()
-}
-
-fn dofs<'a>(r: &'a ResultFile, name: &str) -> &'a [f64] {
-    &r.data
-        .dofs
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no /dofs/{name}"))
-        .1
-}
-
-fn field<'a>(r: &'a ResultFile, name: &str) -> &'a [f64] {
-    &r.data
-        .fields
-        .iter()
-        .find(|f| f.name == name)
-        .unwrap_or_else(|| panic!("no /fields/{name}"))
-        .values
-}
-
-fn solver_attr<'a>(r: &'a ResultFile, name: &str) -> &'a AttrValue {
-    &r.data
-        .solver_attrs
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no /solver attribute {name}"))
-        .1
 }
 
 fn check_close(case: &str, what: &str, rust: &[f64], ff: &[f64]) -> f64 {

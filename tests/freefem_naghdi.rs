@@ -26,9 +26,8 @@
 
 mod common;
 
-use common::{check_success, max_abs, read_ff_mesh, read_info, read_numbers, rel_diff};
+use common::{check_success, diamond, max_abs, read_ff_mesh, read_info, read_numbers, rel_diff};
 use obstacle_fem::assembly::DofNumbering;
-use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{factorize_checked, Solves};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::naghdi::forms::{
@@ -74,18 +73,6 @@ fn script() -> PathBuf {
 /// skips) when FreeFEM is missing.
 fn run_freefem(args: &[String]) -> (Output, f64) {
     common::run_freefem("naghdi-contact.edp", args)
-}
-
-fn diamond(dir: &Path, n: usize) -> (PathBuf, Mesh) {
-    let msh = dir.join(format!("diamond-{n}.msh"));
-    run_gmsh(
-        &common::manifest_path("meshes/diamond.geo"),
-        &msh,
-        &[("n".into(), n as f64)],
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let mesh = Mesh::read_msh(&msh).unwrap_or_else(|e| panic!("{e}"));
-    (msh, mesh)
 }
 
 /// One run, on either side: the seven fields in the full layout (component c,

@@ -25,7 +25,7 @@
 
 mod common;
 
-use common::{manifest_path, obstacle, rel_diff};
+use common::{dofs, manifest_path, obstacle, rel_diff, solver_attr};
 use obstacle_fem::freefem::psri_fix_spec;
 use obstacle_fem::output::compare::compare_results;
 use obstacle_fem::output::{read_result, AttrValue, ResultFile};
@@ -75,30 +75,12 @@ fn both(dir: &Path, name: &str, scene: &str, extra: &[String]) -> (PathBuf, Path
     (rust, ff, rust_seconds, ff_seconds)
 }
 
-fn dofs<'a>(r: &'a ResultFile, name: &str) -> &'a [f64] {
-    &r.data
-        .dofs
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no /dofs/{name}"))
-        .1
-}
-
 fn space<'a>(r: &'a ResultFile, name: &str) -> &'a str {
     &r.data
         .dof_spaces
         .iter()
         .find(|(n, _)| n == name)
         .unwrap_or_else(|| panic!("/dofs/{name} has no space"))
-        .1
-}
-
-fn solver_attr<'a>(r: &'a ResultFile, name: &str) -> &'a AttrValue {
-    &r.data
-        .solver_attrs
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no /solver attribute {name}"))
         .1
 }
 

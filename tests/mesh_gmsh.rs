@@ -2,10 +2,14 @@
 //! cross-check with FreeFEM's `gmshload` (same vertex, triangle and in-triangle
 //! order). Needs `gmsh` and `FreeFem++` (with `libfreefem++`) on PATH.
 
+mod common;
+
+use common::mirror_map;
+
 use obstacle_fem::gmsh::{gmsh_version, run_gmsh};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::Error;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashSet;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -204,37 +208,8 @@ fn meshing_is_reproducible() {
     }
 }
 
-/// Index of the vertex at `p` (within tol), for each vertex mirrored by `f`.
-fn mirror_map(m: &Mesh, f: impl Fn([f64; 2]) -> [f64; 2], tol: f64) -> Vec<usize> {
-    // Bucket by rounded coordinates (tol << bucket size).
-    let bucket = |p: [f64; 2]| [(p[0] * 1e6).round() as i64, (p[1] * 1e6).round() as i64];
-    let mut grid: HashMap<[i64; 2], Vec<usize>> = HashMap::new();
-    for (i, &p) in m.vertices.iter().enumerate() {
-        grid.entry(bucket(p)).or_default().push(i);
-    }
-    m.vertices
-        .iter()
-        .map(|&p| {
-            let q = f(p);
-            let b = bucket(q);
-            let mut found = None;
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for &j in grid.get(&[b[0] + dx, b[1] + dy]).into_iter().flatten() {
-                        let w = m.vertices[j];
-                        if (w[0] - q[0]).abs() <= tol && (w[1] - q[1]).abs() <= tol {
-                            found = Some(j);
-                        }
-                    }
-                }
-            }
-            found.unwrap_or_else(|| panic!("no vertex at the mirror {q:?} of {p:?}"))
-        })
-        .collect()
-}
-
 fn assert_mirror_symmetric(m: &Mesh, f: impl Fn([f64; 2]) -> [f64; 2], what: &str) {
-    let map = mirror_map(m, f, 1e-9 * R);
+    let map = mirror_map(&m.vertices, f, 1e-9 * R);
     let set: HashSet<[usize; 3]> = m
         .triangles
         .iter()

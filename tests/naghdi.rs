@@ -6,8 +6,9 @@
 //! Reissner–Mindlin centre deflections (convergence for a thick plate, shear
 //! locking for a thin one).
 
+mod common;
+
 use obstacle_fem::assembly::{integrate_per_triangle, mat_vec, norm2, norm_inf, DofNumbering};
-use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{factorize_checked, MatrixKind, Solves};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::naghdi::forms::{
@@ -19,23 +20,9 @@ use obstacle_fem::quadrature::TriangleRule;
 use obstacle_fem::solvers::uzawa::solve_linear;
 use obstacle_fem::solvers::SolveReport;
 use obstacle_fem::space::{Element, Space};
-use std::path::Path;
 use std::time::Instant;
 
 const R: f64 = 50.0 * std::f64::consts::SQRT_2;
-
-/// The structured diamond {|x| + |y| < 50√2} with n subdivisions per side.
-fn diamond(n: usize) -> Mesh {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join(format!("diamond-{n}.msh"));
-    run_gmsh(
-        Path::new("meshes/diamond.geo"),
-        &out,
-        &[("n".into(), n as f64)],
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    Mesh::read_msh(&out).unwrap()
-}
 
 fn thesis_material() -> Material {
     Material {
@@ -100,6 +87,12 @@ fn solve_free(
     }
 }
 
+/// The structured diamond {|x| + |y| < 50√2} with n subdivisions per side.
+fn diamond_mesh(n: usize) -> Mesh {
+    let dir = tempfile::tempdir().unwrap();
+    common::diamond(dir.path(), n).1
+}
+
 /// For each scalar P1⊕B3 dof (vertex, then triangle bubble), the dof at the
 /// mirrored position: vertices matched by coordinates, bubbles by centroids.
 fn mirror_map(mesh: &Mesh, map: impl Fn([f64; 2]) -> [f64; 2]) -> Vec<usize> {
@@ -117,19 +110,8 @@ fn mirror_map(mesh: &Mesh, map: impl Fn([f64; 2]) -> [f64; 2]) -> Vec<usize> {
         .copied()
         .chain(mesh.triangles.iter().map(centroid))
         .collect();
-    let nv = mesh.n_vertices();
-    points
-        .iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let m = map(x);
-            let same_kind = if i < nv { 0..nv } else { nv..points.len() };
-            same_kind
-                .into_iter()
-                .find(|&j| (points[j][0] - m[0]).abs() < tol && (points[j][1] - m[1]).abs() < tol)
-                .expect("the mesh is mirror-symmetric")
-        })
-        .collect()
+    // A centroid is never a vertex: a point maps to one of its own kind.
+    common::mirror_map(&points, map, tol)
 }
 
 fn centre_vertex(mesh: &Mesh) -> usize {
@@ -148,7 +130,7 @@ fn range(v: &[f64]) -> (f64, f64) {
 
 #[test]
 fn thesis_dof_count() {
-    let mesh = diamond(16);
+    let mesh = diamond_mesh(16);
     assert_eq!(mesh.n_vertices(), 289);
     assert_eq!(mesh.n_triangles(), 512);
     let layout = ShellLayout::new(&mesh);
@@ -194,7 +176,7 @@ fn thesis_dof_count() {
 #[test]
 fn free_hypar() {
     let start = Instant::now();
-    let mesh = diamond(16);
+    let mesh = diamond_mesh(16);
     let chart = Chart::HyperbolicParaboloid { r: R, offset: 1.4 };
     let material = thesis_material();
     let sol = solve_free(&mesh, &chart, &material, 1e3, [0.0, 0.0, -0.25]);
@@ -308,7 +290,7 @@ fn free_hypar() {
 /// so a large ρ adds stiffness.
 #[test]
 fn hypar_penalty_rho() {
-    let mesh = diamond(16);
+    let mesh = diamond_mesh(16);
     let chart = Chart::HyperbolicParaboloid { r: R, offset: 1.4 };
     let material = thesis_material();
     let load = [0.0, 0.0, -0.25];
@@ -368,7 +350,7 @@ fn plate_ratio(n: usize, thickness: f64) -> f64 {
         poisson: 0.4,
         thickness,
     };
-    let mesh = diamond(n);
+    let mesh = diamond_mesh(n);
     let sol = solve_free(
         &mesh,
         &Chart::Plate { height: 0.0 },

@@ -3,7 +3,11 @@
 //! obstacle-free twin, the plate reduction, edge loads, and the checks a
 //! scene gets before anything is solved.
 
-use obstacle_fem::output::{read_result, AttrValue, ResultFile};
+mod common;
+
+use common::{field, mirror_map, root_attr};
+
+use obstacle_fem::output::{read_result, AttrValue};
 use obstacle_fem::pipeline::{run_scene, RunSummary};
 use obstacle_fem::scene::Scene;
 use obstacle_fem::Error;
@@ -25,42 +29,8 @@ fn run(path: &str, dir: &Path, name: &str, overrides: &[&str]) -> Result<RunSumm
     )
 }
 
-fn field<'a>(file: &'a ResultFile, name: &str) -> &'a [f64] {
-    &file
-        .data
-        .fields
-        .iter()
-        .find(|f| f.name == name)
-        .unwrap_or_else(|| panic!("no field {name}"))
-        .values
-}
-
-fn root_attr(file: &ResultFile, name: &str) -> AttrValue {
-    file.data
-        .root_attrs
-        .iter()
-        .find(|(k, _)| k == name)
-        .unwrap_or_else(|| panic!("no attribute {name}"))
-        .1
-        .clone()
-}
-
 fn history(summary: &RunSummary, column: &str, iteration: usize) -> f64 {
     summary.history.column(column).expect(column)[iteration - 1]
-}
-
-/// The vertex matching each vertex under a map of the plane (mirror symmetry).
-fn mirror(vertices: &[[f64; 2]], map: impl Fn([f64; 2]) -> [f64; 2]) -> Vec<usize> {
-    vertices
-        .iter()
-        .map(|&v| {
-            let m = map(v);
-            vertices
-                .iter()
-                .position(|w| (w[0] - m[0]).abs() + (w[1] - m[1]).abs() < 1e-9)
-                .expect("the mesh is mirror-symmetric")
-        })
-        .collect()
 }
 
 /// The thesis' shell as the thesis ran it: α = 0.01 (integral form), stop on
@@ -182,8 +152,8 @@ fn converged_contact_solution() {
     let u = field(&file, "u");
     let scale = u.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     for (map, parity1) in [
-        (mirror(&file.vertices, |v| [-v[0], v[1]]), -1.0),
-        (mirror(&file.vertices, |v| [v[0], -v[1]]), 1.0),
+        (mirror_map(&file.vertices, |v| [-v[0], v[1]], 1e-9), -1.0),
+        (mirror_map(&file.vertices, |v| [v[0], -v[1]], 1e-9), 1.0),
     ] {
         for (v, &w) in map.iter().enumerate() {
             assert!((u[3 * v + 2] - u[3 * w + 2]).abs() < 1e-6 * scale);

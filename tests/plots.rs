@@ -3,64 +3,17 @@
 //!
 //! Set `OBSTACLE_PLOT_DIR=/some/dir` to keep the figures for a look.
 
-use obstacle_fem::mesh::{BoundaryEdge, Mesh};
+mod common;
+
+use common::square_mesh;
+
 use obstacle_fem::plot::{
     plot_cell_field, plot_contact_zone, plot_convergence, plot_history, plot_lines,
     plot_vertex_field,
 };
 use obstacle_fem::solvers::measures::History;
-use std::collections::BTreeMap;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-
-/// A structured triangulation of [-1, 1]² with n × n squares, each cut
-/// along a diagonal (alternating), boundary edges tagged 1.
-fn square_mesh(n: usize) -> Mesh {
-    let idx = |i: usize, j: usize| j * (n + 1) + i;
-    let mut vertices = Vec::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            vertices.push([
-                -1.0 + 2.0 * i as f64 / n as f64,
-                -1.0 + 2.0 * j as f64 / n as f64,
-            ]);
-        }
-    }
-    let mut triangles = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let (a, b, c, d) = (idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1));
-            if (i + j) % 2 == 0 {
-                triangles.push([a, b, c]);
-                triangles.push([a, c, d]);
-            } else {
-                triangles.push([a, b, d]);
-                triangles.push([b, c, d]);
-            }
-        }
-    }
-    let mut boundary_edges = Vec::new();
-    for k in 0..n {
-        for e in [
-            [idx(k, 0), idx(k + 1, 0)],
-            [idx(n, k), idx(n, k + 1)],
-            [idx(k + 1, n), idx(k, n)],
-            [idx(0, k + 1), idx(0, k)],
-        ] {
-            boundary_edges.push(BoundaryEdge {
-                vertices: e,
-                tag: 1,
-            });
-        }
-    }
-    Mesh::from_parts(
-        vertices,
-        triangles,
-        boundary_edges,
-        BTreeMap::new(),
-        PathBuf::new(),
-    )
-    .expect("valid square mesh")
-}
 
 /// A membrane-like field: a bump resting on a flat obstacle near the centre.
 fn field(p: [f64; 2]) -> f64 {
@@ -136,6 +89,62 @@ fn assert_no_leftovers(dir: &Path) {
         .collect();
     assert!(left.is_empty(), "temporary files left: {left:?}");
 }
+
+/// A decoded PNG figure: its size and a count of each RGB colour.
+struct Png {
+    width: u32,
+    height: u32,
+    counts: HashMap<[u8; 3], usize>,
+}
+
+impl Png {
+    fn read(path: &Path) -> Png {
+        let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+        decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+        let mut reader = decoder
+            .read_info()
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let frame = reader
+            .next_frame(&mut buf)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let samples = frame.color_type.samples();
+        assert!(samples >= 3, "{}: not an RGB image", path.display());
+        let mut counts = HashMap::new();
+        for px in buf[..frame.buffer_size()].chunks_exact(samples) {
+            *counts.entry([px[0], px[1], px[2]]).or_insert(0) += 1;
+        }
+        Png {
+            width: frame.width,
+            height: frame.height,
+            counts,
+        }
+    }
+
+    fn count(&self, rgb: [u8; 3]) -> usize {
+        self.counts.get(&rgb).copied().unwrap_or(0)
+    }
+
+    /// The fraction of pixels that are not white.
+    fn ink(&self) -> f64 {
+        let total = (self.width * self.height) as f64;
+        1.0 - self.count([255, 255, 255]) as f64 / total
+    }
+
+    fn describe(&self, what: &str) -> String {
+        format!(
+            "{what}: {}×{}, {} colours, ink {:.3}",
+            self.width,
+            self.height,
+            self.counts.len(),
+            self.ink()
+        )
+    }
+}
+
+/// The first colours of the curve palette (matplotlib's tab10, src/plot.rs).
+const TAB10: [[u8; 3]; 4] = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40]];
 
 #[test]
 fn vertex_field_png_and_svg() {
@@ -398,6 +407,37 @@ fn lines_with_a_crowded_plot() {
         plot_lines(&path, &series, "x or y", "z", "crowded").unwrap();
         check_figure(&path, "crowded");
     }
+    // The PNG: the curve figure's size, each of the four curves drawn in its
+    // own colour (a long curve: many pixels), and ink in a sane range.
+    let png = Png::read(&out.dir.join("lines_crowded.png"));
+    println!("{}", png.describe("crowded"));
+    assert_eq!((png.width, png.height), (960, 600));
+    for (k, c) in TAB10.iter().enumerate() {
+        assert!(
+            png.count(*c) >= 300,
+            "curve {k} (colour {c:?}) has {} pixels",
+            png.count(*c)
+        );
+    }
+    assert!(png.counts.len() >= 8, "{}", png.describe("crowded"));
+    assert!(
+        (0.02..0.5).contains(&png.ink()),
+        "{}",
+        png.describe("crowded")
+    );
+    // The SVG: every series is in the legend, once (the title, axes and
+    // legend only: curves are paths).
+    let svg = std::fs::read_to_string(out.dir.join("lines_crowded.svg")).unwrap();
+    for (name, _) in &series {
+        assert_eq!(
+            svg.matches(name.as_str()).count(),
+            1,
+            "legend entry {name:?}"
+        );
+    }
+    let len = svg.len();
+    println!("crowded SVG: {len} bytes");
+    assert!((5_000..2_000_000).contains(&len), "SVG of {len} bytes");
 }
 
 #[test]
@@ -521,4 +561,51 @@ fn fine_mesh() {
         plot_contact_zone(&path, &mesh, &flags, "fine contact", Some(0.5)).unwrap();
         check_figure(&path, "fine contact");
     }
+    // The field: a smooth colour map over 45 000 triangles has many colours
+    // and fills most of the plot.
+    let field_png = Png::read(&out.dir.join("fine_field.png"));
+    println!("{}", field_png.describe("fine field"));
+    assert_eq!((field_png.width, field_png.height), FINE_PNG_SIZE);
+    assert!(
+        field_png.counts.len() >= 200,
+        "{}",
+        field_png.describe("fine field")
+    );
+    assert!(
+        field_png.ink() > 0.3,
+        "{}",
+        field_png.describe("fine field")
+    );
+    // The contact zone: the active disk (r < 0.5 in the square of side 2)
+    // filled in the strong colour, a fixed share of the figure (measured:
+    // 53 640 px, 8.0 %); the rest (outline, axes, text, legend) is thin ink,
+    // not a grey mass of 45 000 triangle edges (measured: 2.0 %).
+    let contact = Png::read(&out.dir.join("fine_contact.png"));
+    println!("{}", contact.describe("fine contact"));
+    assert_eq!((contact.width, contact.height), FINE_CONTACT_PNG_SIZE);
+    let total = (contact.width * contact.height) as f64;
+    let strong = contact.count([49, 130, 189]) as f64 / total;
+    let other = contact.ink() - strong;
+    println!("fine contact: strong {strong:.4}, other ink {other:.4}");
+    assert!(
+        (0.07..0.09).contains(&strong),
+        "active zone share {strong:.4}"
+    );
+    assert!(other < 0.04, "ink besides the active zone {other:.4}");
+    let svg_len = std::fs::metadata(out.dir.join("fine_contact.svg"))
+        .unwrap()
+        .len();
+    println!("fine contact SVG: {svg_len} bytes");
+    assert!(
+        svg_len < FINE_SVG_MAX,
+        "fine contact SVG of {svg_len} bytes"
+    );
 }
+
+/// The sizes of the field and contact figures of a square domain (measured;
+/// the field's colour bar panel is wider than the contact legend's).
+const FINE_PNG_SIZE: (u32, u32) = (960, 834);
+const FINE_CONTACT_PNG_SIZE: (u32, u32) = (960, 694);
+/// The contact SVG of the fine mesh (measured: 1.74 MB, the active
+/// triangles and the outline); every triangle edge besides would add megabytes.
+const FINE_SVG_MAX: u64 = 2_500_000;

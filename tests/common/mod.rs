@@ -1,11 +1,17 @@
-//! Helpers shared by the FreeFEM cross-check tests. Running FreeFEM and
-//! reading its text output is library code (`obstacle_fem::freefem`); these
-//! wrap it for tests: a missing FreeFEM FAILS a test (CI installs it), it is
-//! never skipped.
+//! Helpers shared by the integration tests (each test file says `mod
+//! common;`): running the `obstacle` binary, looking things up in a result
+//! file, test meshes (the structured square, the gmsh diamond), mirror maps.
+//!
+//! Running FreeFEM and reading its text output is library code
+//! (`obstacle_fem::freefem`); the wrappers here are for tests: a missing
+//! FreeFEM FAILS a test (CI installs it), it is never skipped.
 #![allow(dead_code)]
 
 use obstacle_fem::freefem;
-use std::collections::HashMap;
+use obstacle_fem::gmsh::run_gmsh;
+use obstacle_fem::mesh::{BoundaryEdge, Mesh};
+use obstacle_fem::output::{AttrValue, ResultFile};
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -94,4 +100,172 @@ pub fn rel_diff(a: &[f64], b: &[f64]) -> (f64, usize) {
             |(bi, bd), (i, d)| if d > bd { (i, d) } else { (bi, bd) },
         );
     (d / scale, i)
+}
+
+// ---- the `obstacle` binary as a user runs it ----------------------------------
+
+/// Runs the `obstacle` binary with `CI=1` (no progress bars) and the extra
+/// environment `env`; its output, whatever the exit status.
+pub fn run_obstacle_env(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_obstacle"));
+    c.args(args).env("CI", "1");
+    for (k, v) in env {
+        c.env(k, v);
+    }
+    c.output().expect("the obstacle binary runs")
+}
+
+/// Runs the `obstacle` binary with `CI=1`; its output, whatever the exit status.
+pub fn run_obstacle(args: &[&str]) -> Output {
+    run_obstacle_env(args, &[])
+}
+
+/// Standard output followed by standard error, as text.
+pub fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+// ---- looking things up in a result file ---------------------------------------
+
+/// The values of `/fields/{name}`.
+pub fn field<'a>(r: &'a ResultFile, name: &str) -> &'a [f64] {
+    &r.data
+        .fields
+        .iter()
+        .find(|f| f.name == name)
+        .unwrap_or_else(|| panic!("no /fields/{name}"))
+        .values
+}
+
+/// The coefficient vector `/dofs/{name}`.
+pub fn dofs<'a>(r: &'a ResultFile, name: &str) -> &'a [f64] {
+    &r.data
+        .dofs
+        .iter()
+        .find(|(n, _)| n == name)
+        .unwrap_or_else(|| panic!("no /dofs/{name}"))
+        .1
+}
+
+/// An attribute of `/solver`.
+pub fn solver_attr<'a>(r: &'a ResultFile, name: &str) -> &'a AttrValue {
+    &r.data
+        .solver_attrs
+        .iter()
+        .find(|(n, _)| n == name)
+        .unwrap_or_else(|| panic!("no /solver attribute {name}"))
+        .1
+}
+
+/// An attribute of the file's root group.
+pub fn root_attr(file: &ResultFile, name: &str) -> AttrValue {
+    file.data
+        .root_attrs
+        .iter()
+        .find(|(k, _)| k == name)
+        .unwrap_or_else(|| panic!("no attribute {name}"))
+        .1
+        .clone()
+}
+
+// ---- meshes --------------------------------------------------------------------
+
+/// A structured triangulation of [-1, 1]² with n × n squares, each cut
+/// along a diagonal (alternating), boundary edges tagged 1.
+pub fn square_mesh(n: usize) -> Mesh {
+    let idx = |i: usize, j: usize| j * (n + 1) + i;
+    let mut vertices = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            vertices.push([
+                -1.0 + 2.0 * i as f64 / n as f64,
+                -1.0 + 2.0 * j as f64 / n as f64,
+            ]);
+        }
+    }
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (a, b, c, d) = (idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1));
+            if (i + j) % 2 == 0 {
+                triangles.push([a, b, c]);
+                triangles.push([a, c, d]);
+            } else {
+                triangles.push([a, b, d]);
+                triangles.push([b, c, d]);
+            }
+        }
+    }
+    let mut boundary_edges = Vec::new();
+    for k in 0..n {
+        for e in [
+            [idx(k, 0), idx(k + 1, 0)],
+            [idx(n, k), idx(n, k + 1)],
+            [idx(k + 1, n), idx(k, n)],
+            [idx(0, k + 1), idx(0, k)],
+        ] {
+            boundary_edges.push(BoundaryEdge {
+                vertices: e,
+                tag: 1,
+            });
+        }
+    }
+    Mesh::from_parts(
+        vertices,
+        triangles,
+        boundary_edges,
+        BTreeMap::new(),
+        PathBuf::new(),
+    )
+    .expect("valid square mesh")
+}
+
+/// The structured diamond {|x| + |y| < 50√2} with n subdivisions per side
+/// (`meshes/diamond.geo` through gmsh), written to `dir`: the file and the mesh.
+pub fn diamond(dir: &Path, n: usize) -> (PathBuf, Mesh) {
+    let msh = dir.join(format!("diamond-{n}.msh"));
+    run_gmsh(
+        &manifest_path("meshes/diamond.geo"),
+        &msh,
+        &[("n".into(), n as f64)],
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let mesh = Mesh::read_msh(&msh).unwrap_or_else(|e| panic!("{e}"));
+    (msh, mesh)
+}
+
+/// For each point, the index of the point at its image under `f` (within
+/// `tol` in each coordinate; `tol` must be below 1e-6): mirror symmetries.
+/// Panics when a point has no mirror.
+pub fn mirror_map(points: &[[f64; 2]], f: impl Fn([f64; 2]) -> [f64; 2], tol: f64) -> Vec<usize> {
+    assert!(tol < 1e-6, "tol {tol} exceeds the bucket size");
+    // Bucket by rounded coordinates (tol << bucket size).
+    let bucket = |p: [f64; 2]| [(p[0] * 1e6).round() as i64, (p[1] * 1e6).round() as i64];
+    let mut grid: HashMap<[i64; 2], Vec<usize>> = HashMap::new();
+    for (i, &p) in points.iter().enumerate() {
+        grid.entry(bucket(p)).or_default().push(i);
+    }
+    points
+        .iter()
+        .map(|&p| {
+            let q = f(p);
+            let b = bucket(q);
+            let mut found = None;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for &j in grid.get(&[b[0] + dx, b[1] + dy]).into_iter().flatten() {
+                        let w = points[j];
+                        if (w[0] - q[0]).abs() <= tol && (w[1] - q[1]).abs() <= tol {
+                            found = Some(j);
+                        }
+                    }
+                }
+            }
+            found.unwrap_or_else(|| panic!("no point at the mirror {q:?} of {p:?}"))
+        })
+        .collect()
 }
