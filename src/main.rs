@@ -8,7 +8,7 @@ use obstacle_fem::progress::progress_wanted;
 use obstacle_fem::scene::Scene;
 use obstacle_fem::study::{
     csv_table, history_tables, markdown_table, reference_study, run_study, write_convergence_plots,
-    Study,
+    write_work_precision, Study,
 };
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -206,6 +206,13 @@ fn run(cli: Cli) -> Result<()> {
             }
             if let Some(r) = &spec.reference {
                 let (table, plots) = reference_study(&spec, r, &rows, &out_dir)?;
+                md.push_str(&table);
+                for f in plots {
+                    println!("plot: {}", f.display());
+                }
+            }
+            if let Some(w) = &spec.work_precision {
+                let (table, plots) = write_work_precision(&spec, w, &rows, &out_dir)?;
                 md.push_str(&table);
                 for f in plots {
                     println!("plot: {}", f.display());

@@ -14,6 +14,10 @@
 //! key = "mesh.h"                              # the innermost sweep is the mesh level
 //! values = [0.8, 0.4, 0.2, 0.1]
 //! ```
+//!
+//! Optional: `with = { KEY = [...] }` in a sweep (keys set together with its
+//! key), `[reference]` (errors against the finest run), `[work_precision]`
+//! (errors of root attributes against given values, plotted against time).
 
 use crate::error::{Error, Result};
 use crate::models::membrane::ExactErrors;
@@ -44,6 +48,16 @@ pub struct Study {
     pub history: Option<HistoryTableSpec>,
     /// Errors of each run against the last (finest) run of its group (thesis Fig. 5.10).
     pub reference: Option<ReferenceSpec>,
+    /// Relative errors of root attributes against given reference values,
+    /// plotted against wall time, one curve per group of the outer sweeps.
+    pub work_precision: Option<WorkPrecisionSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorkPrecisionSpec {
+    /// Root attribute → its reference value, e.g. { u3_min = -1.217 }.
+    pub reference: std::collections::BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -570,6 +584,80 @@ pub fn reference_study(
             "relative L² error",
             &format!("{}: errors against h = {:.3}", study.name, reference.h),
             &[0.5, 1.0, 2.0],
+        )?;
+        files.push(path);
+    }
+    Ok((md, files))
+}
+
+/// Work–precision figures (`<out_dir>/<study>-work-precision-<attribute>.png`):
+/// for each attribute of `spec.reference`, |value − reference| / |reference|
+/// against the run's wall time, one curve per group of the outer sweeps
+/// (e.g. per element), log–log. Returns the files and a Markdown table.
+pub fn write_work_precision(
+    study: &Study,
+    spec: &WorkPrecisionSpec,
+    rows: &[StudyRow],
+    out_dir: &Path,
+) -> Result<(String, Vec<PathBuf>)> {
+    let mut files = Vec::new();
+    let mut md =
+        String::from("\n### Relative errors against the reference values, and wall time\n\n");
+    let names: Vec<&String> = spec.reference.keys().collect();
+    let _ = writeln!(
+        md,
+        "| run | time [s] | {} |\n|---|---|{}",
+        names
+            .iter()
+            .map(|n| n.as_str())
+            .collect::<Vec<_>>()
+            .join(" | "),
+        "---|".repeat(names.len())
+    );
+    let error = |r: &StudyRow, name: &str, reference: f64| {
+        r.summary
+            .attr(name)
+            .filter(|_| r.failure.is_none())
+            .map(|v| (v - reference).abs() / reference.abs())
+    };
+    for r in rows {
+        let label: Vec<String> = r.labels.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+        let cells: Vec<String> = spec
+            .reference
+            .iter()
+            .map(|(n, &v)| error(r, n, v).map_or("–".into(), |e| format!("{e:.2e}")))
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {:.3} | {} |",
+            label.join(", "),
+            r.summary.wall_seconds,
+            cells.join(" | ")
+        );
+    }
+    for (name, &reference) in &spec.reference {
+        let series: Vec<(String, Vec<(f64, f64)>)> = groups(rows)
+            .into_iter()
+            .map(|range| {
+                let label: Vec<String> = outer_labels(&rows[range.start])
+                    .iter()
+                    .map(|(k, v)| format!("{k} = {v}"))
+                    .collect();
+                let pts = rows[range]
+                    .iter()
+                    .filter_map(|r| error(r, name, reference).map(|e| (r.summary.wall_seconds, e)))
+                    .collect();
+                (label.join(", "), pts)
+            })
+            .collect();
+        let path = out_dir.join(format!("{}-work-precision-{name}.png", study.name));
+        plot::plot_convergence(
+            &path,
+            &series,
+            "wall time [s]",
+            &format!("relative error of {name}"),
+            &format!("{}: {name} against time", study.name),
+            &[],
         )?;
         files.push(path);
     }
