@@ -997,9 +997,9 @@ fn read_len(path: &Path, n: usize) -> Result<Vec<f64>> {
 /// The membrane's fields and dofs, named as `models::membrane` names them.
 fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Result<ResultData> {
     let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
-    let (nu, nl, location) = match scene.element {
-        ElementPair::P1bP0 => (nv + nt, nt, Location::Cell),
-        ElementPair::P2P1 => (nv + mesh.n_edges(), nv, Location::Vertex),
+    let (nu, nl, (u_element, multipliers)) = match scene.element {
+        ElementPair::P1bP0 => (nv + nt, nt, (Element::P1Bubble, Element::P0)),
+        ElementPair::P2P1 => (nv + mesh.n_edges(), nv, (Element::P2, Element::P1)),
         ElementPair::P2bPsri => {
             return Err(scene_error(
                 scene,
@@ -1015,13 +1015,14 @@ fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> 
     };
     data.fields.push(vertex_field("u", u[..nv].to_vec()));
     data.dofs.push(("u".into(), u));
+    data.dof_spaces.push(("u".into(), space_tag(u_element, 1)));
     data.fields
         .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
     contact_fields(
         &mut data,
         read_len(&file("lambda.txt"), nl)?,
         read_len(&file("gap.txt"), nl)?,
-        location,
+        multipliers,
     );
     Ok(data)
 }
@@ -1047,24 +1048,44 @@ fn naghdi_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Re
         });
         data.dofs
             .push((name.into(), full[first * ns..(first + 3) * ns].to_vec()));
+        data.dof_spaces
+            .push((name.into(), space_tag(Element::P1Bubble, 3)));
     }
     data.fields.push(vertex_field("psi", psi[..nv].to_vec()));
     data.dofs.push(("psi".into(), psi));
+    data.dof_spaces
+        .push(("psi".into(), space_tag(Element::P1Bubble, 1)));
     let half_eps = 0.5 * scene.shell.as_ref().map_or(0.0, |s| s.thickness);
     let constraint: Vec<f64> = (0..nv)
         .map(|v| block(2)[v] - half_eps * block(5)[v])
         .collect();
-    if scene.obstacle.is_some() {
-        data.fields
-            .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
-        data.fields.push(vertex_field("constraint", constraint));
-        let lambda = read_len(&file("lambda.txt"), nt)?;
-        let gap = read_len(&file("gap.txt"), nt)?;
-        contact_fields(&mut data, lambda, gap, Location::Cell);
-    } else {
-        data.fields.push(vertex_field("constraint", constraint));
-    }
+    shell_contact_fields(&mut data, scene, file, constraint, Element::P0, nv, nt)?;
     Ok(data)
+}
+
+/// The shell's constraint field and, with an obstacle, Φ_h, λ (in
+/// `multipliers`: P0 per triangle or P1 per vertex, `n_lambda` values) and the
+/// mean gaps, as `NaghdiSystem::results` writes them.
+fn shell_contact_fields(
+    data: &mut ResultData,
+    scene: &Scene,
+    file: &dyn Fn(&str) -> PathBuf,
+    constraint: Vec<f64>,
+    multipliers: Element,
+    nv: usize,
+    n_lambda: usize,
+) -> Result<()> {
+    if scene.obstacle.is_none() {
+        data.fields.push(vertex_field("constraint", constraint));
+        return Ok(());
+    }
+    data.fields
+        .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
+    data.fields.push(vertex_field("constraint", constraint));
+    let lambda = read_len(&file("lambda.txt"), n_lambda)?;
+    let gap = read_len(&file("gap.txt"), n_lambda)?;
+    contact_fields(data, lambda, gap, multipliers);
+    Ok(())
 }
 
 /// The fields and dofs of the PSRI element, named and laid out as
@@ -1181,18 +1202,7 @@ fn psri_data(
             .sum()
         })
         .collect();
-    if scene.obstacle.is_some() {
-        data.fields
-            .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
-        data.fields.push(vertex_field("constraint", constraint));
-        let lambda = read_len(&file("lambda.txt"), nv)?;
-        let gap = read_len(&file("gap.txt"), nv)?;
-        contact_fields(&mut data, lambda, gap, Location::Vertex);
-        data.dof_spaces
-            .push(("lambda".into(), space_tag(Element::P1, 1)));
-    } else {
-        data.fields.push(vertex_field("constraint", constraint));
-    }
+    shell_contact_fields(&mut data, scene, file, constraint, Element::P1, nv, nv)?;
     data.root_attrs.extend([
         ("chart".into(), AttrValue::Str(shell.chart.kind().into())),
         (

@@ -14,7 +14,7 @@ use crate::assembly::{
 use crate::error::Result;
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
-use crate::output::{AttrValue, Location, ResultData};
+use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
 use crate::scene::{ElementPair, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
@@ -204,18 +204,18 @@ impl ModelSystem for MembraneSystem<'_> {
         data.fields
             .push(vertex_field("u", self.u_space.vertex_values(&u)));
         data.dofs.push(("u".into(), u));
+        data.dof_spaces.push((
+            "u".into(),
+            crate::output::space_tag(self.u_space.element, 1),
+        ));
         if let (Some(obstacle), Some(c)) = (&scene.obstacle, &problem.constraint) {
             let phi = Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
             data.fields.push(vertex_field("phi", phi));
-            let location = match self.lambda_space.element {
-                Element::P0 => Location::Cell,
-                _ => Location::Vertex,
-            };
             contact_fields(
                 &mut data,
                 report.lambda.clone(),
                 c.mean_gaps(&report.x),
-                location,
+                self.lambda_space.element,
             );
         }
         data.root_attrs

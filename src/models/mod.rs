@@ -13,6 +13,7 @@ use crate::output::{Field, Location, ResultData};
 use crate::scene::Scene;
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
+use crate::space::Element;
 use membrane::ExactErrors;
 
 /// A model set up on a mesh for a scene: the steps of a run after meshing.
@@ -81,8 +82,19 @@ pub fn vertex_field(name: &str, values: Vec<f64>) -> Field {
 }
 
 /// The contact fields of a result: λ, the mean gap ḡ and the contact
-/// indicator (λ > 0) at `location`, and λ's coefficient vector.
-pub fn contact_fields(data: &mut ResultData, lambda: Vec<f64>, gap: Vec<f64>, location: Location) {
+/// indicator (λ > 0), per triangle (P0 multipliers) or per vertex (P1), and
+/// λ's coefficient vector with its `space` attribute.
+pub fn contact_fields(
+    data: &mut ResultData,
+    lambda: Vec<f64>,
+    gap: Vec<f64>,
+    multipliers: Element,
+) {
+    let location = if multipliers == Element::P0 {
+        Location::Cell
+    } else {
+        Location::Vertex
+    };
     let contact = lambda
         .iter()
         .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
@@ -100,4 +112,6 @@ pub fn contact_fields(data: &mut ResultData, lambda: Vec<f64>, gap: Vec<f64>, lo
         });
     }
     data.dofs.push(("lambda".into(), lambda));
+    data.dof_spaces
+        .push(("lambda".into(), crate::output::space_tag(multipliers, 1)));
 }

@@ -595,20 +595,12 @@ impl ModelSystem for NaghdiSystem<'_> {
             let area: f64 = active().map(|(_, w)| w).sum();
             // ∫λ: the total force the plane exerts (C's row for u3 ≡ 1 is w).
             let force: f64 = active().map(|(l, w)| l * w).sum();
-            let location = match layout.kind.multiplier_element() {
-                Element::P0 => Location::Cell,
-                _ => Location::Vertex,
-            };
             contact_fields(
                 &mut data,
                 report.lambda.clone(),
                 c.mean_gaps(&report.x),
-                location,
+                layout.kind.multiplier_element(),
             );
-            data.dof_spaces.push((
-                "lambda".into(),
-                crate::output::space_tag(layout.kind.multiplier_element(), 1),
-            ));
             attrs.push(("contact_area", AttrValue::F64(area)));
             attrs.push(("contact_force", AttrValue::F64(force)));
             attrs.push((
