@@ -39,94 +39,12 @@ use crate::plot;
 use crate::scene::{read_toml_file, Scene};
 use crate::study::{run_study, Study, StudyRow};
 use crate::transfer::relative_errors;
-use clap::Subcommand;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// The `bench` subcommands.
-#[derive(Subcommand, Debug)]
-pub enum BenchCommand {
-    /// Run a benchmark configuration (pipelines/bench/*.toml): table, CSV, plots.
-    Run {
-        config: PathBuf,
-        #[arg(long, default_value = "build/bench")]
-        out_dir: PathBuf,
-        /// Override the configuration's cap (seconds per run).
-        #[arg(long)]
-        cap: Option<f64>,
-    },
-    /// One benchmark case (run by `bench run` in a child process): prints one `BENCH …` line.
-    Case {
-        scene: PathBuf,
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Result file of the contact solve.
-        #[arg(long)]
-        out: PathBuf,
-        /// Only the floor: factorise the system matrix without contact and solve once.
-        #[arg(long)]
-        linear: bool,
-        /// Tolerances whose first iteration (and estimate when not reached) to report.
-        #[arg(long, value_delimiter = ',')]
-        tols: Vec<f64>,
-    },
-    /// Work–precision study: error against wall time (report, plots, CSV).
-    Study {
-        /// Studies whose runs carry errors against the exact solution (disk).
-        #[arg(long = "exact")]
-        exact: Vec<PathBuf>,
-        /// Studies measured against `--reference` (shell).
-        #[arg(long = "against")]
-        against: Vec<PathBuf>,
-        /// A study with one run: the reference solution of the `--against` studies.
-        #[arg(long)]
-        reference: Option<PathBuf>,
-        /// Fields of the reference comparison.
-        #[arg(long, value_delimiter = ',', default_value = "u,r,psi,lambda")]
-        fields: Vec<String>,
-        #[arg(long, default_value = "build/study")]
-        out_dir: PathBuf,
-    },
-}
-
-/// Runs a `bench` subcommand.
-pub fn run(command: BenchCommand) -> Result<()> {
-    match command {
-        BenchCommand::Run {
-            config,
-            out_dir,
-            cap,
-        } => {
-            let mut cfg = BenchConfig::load(&config)?;
-            if let Some(c) = cap {
-                cfg.cap_seconds = c;
-            }
-            run_bench(&cfg, &config, &out_dir).map(|_| ())
-        }
-        BenchCommand::Case {
-            scene,
-            set,
-            out,
-            linear,
-            tols,
-        } => {
-            let line = run_case(&scene, &set, &out, linear, &tols)?;
-            println!("BENCH {line}");
-            Ok(())
-        }
-        BenchCommand::Study {
-            exact,
-            against,
-            reference,
-            fields,
-            out_dir,
-        } => work_precision(&exact, &against, reference.as_deref(), &fields, &out_dir),
-    }
-}
 
 // ---------------------------------------------------------------------------
 // Configuration
@@ -256,7 +174,7 @@ pub fn peak_rss_kb() -> Option<u64> {
 }
 
 /// One case; returns the `key=value` fields of its `BENCH` line.
-fn run_case(
+pub fn run_case(
     scene_path: &Path,
     set: &[String],
     out: &Path,

@@ -1,6 +1,7 @@
 //! `obstacle`: the command line of the pipeline.
 
 use clap::{Parser, Subcommand};
+use obstacle_fem::bench::{run_bench, run_case, work_precision, BenchConfig};
 use obstacle_fem::error::{Error, Result};
 use obstacle_fem::output::{read_result, summary};
 use obstacle_fem::pipeline::{run_scene, scene_mesh};
@@ -100,8 +101,89 @@ enum Command {
     /// Benchmarks and work–precision studies (`make bench`, `make scale`, `make study`).
     Bench {
         #[command(subcommand)]
-        command: obstacle_fem::bench::BenchCommand,
+        command: BenchCommand,
     },
+}
+
+/// The `bench` subcommands.
+#[derive(Subcommand, Debug)]
+enum BenchCommand {
+    /// Run a benchmark configuration (pipelines/bench/*.toml): table, CSV, plots.
+    Run {
+        config: PathBuf,
+        #[arg(long, default_value = "build/bench")]
+        out_dir: PathBuf,
+        /// Override the configuration's cap (seconds per run).
+        #[arg(long)]
+        cap: Option<f64>,
+    },
+    /// One benchmark case (run by `bench run` in a child process): prints one `BENCH …` line.
+    Case {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Result file of the contact solve.
+        #[arg(long)]
+        out: PathBuf,
+        /// Only the floor: factorise the system matrix without contact and solve once.
+        #[arg(long)]
+        linear: bool,
+        /// Tolerances whose first iteration (and estimate when not reached) to report.
+        #[arg(long, value_delimiter = ',')]
+        tols: Vec<f64>,
+    },
+    /// Work–precision study: error against wall time (report, plots, CSV).
+    Study {
+        /// Studies whose runs carry errors against the exact solution (disk).
+        #[arg(long = "exact")]
+        exact: Vec<PathBuf>,
+        /// Studies measured against `--reference` (shell).
+        #[arg(long = "against")]
+        against: Vec<PathBuf>,
+        /// A study with one run: the reference solution of the `--against` studies.
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// Fields of the reference comparison.
+        #[arg(long, value_delimiter = ',', default_value = "u,r,psi,lambda")]
+        fields: Vec<String>,
+        #[arg(long, default_value = "build/study")]
+        out_dir: PathBuf,
+    },
+}
+
+/// Runs a `bench` subcommand.
+fn bench(command: BenchCommand) -> Result<()> {
+    match command {
+        BenchCommand::Run {
+            config,
+            out_dir,
+            cap,
+        } => {
+            let mut cfg = BenchConfig::load(&config)?;
+            if let Some(c) = cap {
+                cfg.cap_seconds = c;
+            }
+            run_bench(&cfg, &config, &out_dir).map(|_| ())
+        }
+        BenchCommand::Case {
+            scene,
+            set,
+            out,
+            linear,
+            tols,
+        } => {
+            let line = run_case(&scene, &set, &out, linear, &tols)?;
+            println!("BENCH {line}");
+            Ok(())
+        }
+        BenchCommand::Study {
+            exact,
+            against,
+            reference,
+            fields,
+            out_dir,
+        } => work_precision(&exact, &against, reference.as_deref(), &fields, &out_dir),
+    }
 }
 
 fn main() -> ExitCode {
@@ -192,7 +274,7 @@ fn run(cli: Cli) -> Result<()> {
             obstacle_fem::output::compare::command(&a, &b, rtol, fields.as_deref(), row.as_deref())
         }
         Command::Hard { dir, set, out_dir } => obstacle_fem::hard::command(&dir, &out_dir, &set),
-        Command::Bench { command } => obstacle_fem::bench::run(command),
+        Command::Bench { command } => bench(command),
         Command::Study {
             study,
             out_dir,

@@ -143,7 +143,7 @@ impl Png {
     }
 }
 
-/// The first colours of the curve palette (matplotlib's tab10, src/plot.rs).
+/// The first colours of the curve palette (matplotlib's tab10, src/plot/mod.rs).
 const TAB10: [[u8; 3]; 4] = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40]];
 
 #[test]

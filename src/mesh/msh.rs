@@ -1,56 +1,6 @@
-//! Triangle meshes: the MSH 2.2 reader (the format gmsh writes for FreeFEM's
-//! `gmshload`), validation, edges and boundary tags.
-//!
-//! The reader keeps the file's vertex order, triangle order and the vertex
-//! order inside each triangle (FreeFEM's `gmshload` does the same, so results
-//! can be compared vertex by vertex). Node tags may be non-contiguous: vertex
-//! `i` is the `i`-th node of `$Nodes`, whatever its tag.
-//!
-//! Validation rejects (naming the element number or node tag of the file):
-//! degenerate triangles (|area| <= 1e-12 · longest edge²), clockwise
-//! (inverted) triangles — they are NOT silently reoriented, FreeFEM fails on
-//! them too —, duplicate triangles, undefined node references, vertices used
-//! by no triangle, edges shared by more than two triangles or by two
-//! overlapping triangles, boundary edges of the triangulation without a tagged
-//! line element ("missing boundary tag"), line elements that are not boundary
-//! edges, meshes without triangles, non-finite coordinates, and truncated or
-//! malformed files. The reader never panics on any input.
+//! The MSH 2.2 ASCII reader: `Mesh::read_msh` and its parser.
 
-use crate::error::{Error, Result};
-use std::collections::{BTreeMap, HashMap};
-use std::path::{Path, PathBuf};
-
-/// A boundary segment read from the mesh file (gmsh line element).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BoundaryEdge {
-    /// Vertex indices (zero-based, file order).
-    pub vertices: [usize; 2],
-    /// Physical tag of the line element (first tag in MSH 2.2).
-    pub tag: i32,
-}
-
-/// A 2-D triangle mesh. Vertex and triangle orders are those of the file;
-/// triangles are counter-clockwise (positive area) after validation.
-#[derive(Debug, Clone)]
-pub struct Mesh {
-    pub vertices: Vec<[f64; 2]>,
-    pub triangles: Vec<[usize; 3]>,
-    pub boundary_edges: Vec<BoundaryEdge>,
-    /// Physical names of the file's `$PhysicalNames` section, by tag.
-    pub physical_names: BTreeMap<i32, String>,
-    /// All edges as [a, b] with a < b, in order of first appearance when
-    /// scanning triangles in order and, in each, local edges 0, 1, 2.
-    pub edges: Vec<[usize; 2]>,
-    /// For each triangle, the global edge opposite its local vertex i
-    /// (local edge i joins local vertices i+1 and i+2, mod 3).
-    pub triangle_edges: Vec<[usize; 3]>,
-    /// The file the mesh came from (for error messages); empty if built in memory.
-    pub source: PathBuf,
-}
-
-/// Relative threshold of the degenerate-triangle test:
-/// |area| <= DEGENERATE_RTOL · (longest edge)².
-pub const DEGENERATE_RTOL: f64 = 1e-12;
+use super::*;
 
 impl Mesh {
     /// Read and validate an MSH 2.2 ASCII file.
@@ -78,543 +28,13 @@ impl Mesh {
             &labels,
         )
     }
-
-    /// Build from parts and validate (no degenerate, inverted or duplicate triangles,
-    /// every boundary edge of the triangulation carries a tag).
-    ///
-    /// Error messages name vertices, triangles and boundary edges by their
-    /// zero-based index in the given vectors.
-    pub fn from_parts(
-        vertices: Vec<[f64; 2]>,
-        triangles: Vec<[usize; 3]>,
-        boundary_edges: Vec<BoundaryEdge>,
-        physical_names: BTreeMap<i32, String>,
-        source: PathBuf,
-    ) -> Result<Mesh> {
-        build(
-            vertices,
-            triangles,
-            boundary_edges,
-            physical_names,
-            source,
-            &Labels::Parts,
-        )
-    }
-    /// A mesh from vertices and triangles alone (e.g. read back from a result
-    /// file): every boundary edge gets the tag 0, with no physical name.
-    pub fn from_triangles(
-        vertices: Vec<[f64; 2]>,
-        triangles: Vec<[usize; 3]>,
-        source: PathBuf,
-    ) -> Result<Mesh> {
-        let mut count: HashMap<[usize; 2], (usize, [usize; 2])> = HashMap::new();
-        let mut order = Vec::new();
-        for tri in &triangles {
-            for k in 0..3 {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                let key = [a.min(b), a.max(b)];
-                let entry = count.entry(key).or_insert_with(|| {
-                    order.push(key);
-                    (0, [a, b])
-                });
-                entry.0 += 1;
-            }
-        }
-        let boundary_edges = order
-            .iter()
-            .filter(|k| count[*k].0 == 1)
-            .map(|k| BoundaryEdge {
-                vertices: count[k].1,
-                tag: 0,
-            })
-            .collect();
-        Mesh::from_parts(vertices, triangles, boundary_edges, BTreeMap::new(), source)
-    }
-
-    pub fn n_vertices(&self) -> usize {
-        self.vertices.len()
-    }
-    pub fn n_triangles(&self) -> usize {
-        self.triangles.len()
-    }
-    pub fn n_edges(&self) -> usize {
-        self.edges.len()
-    }
-    /// Signed area of triangle t (positive after validation).
-    pub fn area(&self, t: usize) -> f64 {
-        let [a, b, c] = self.triangles[t];
-        signed_area(self.vertices[a], self.vertices[b], self.vertices[c])
-    }
-    /// Sum of the triangle areas.
-    pub fn total_area(&self) -> f64 {
-        (0..self.n_triangles()).map(|t| self.area(t)).sum()
-    }
-    /// Length of global edge e.
-    pub fn edge_length(&self, e: usize) -> f64 {
-        let [a, b] = self.edges[e];
-        dist(self.vertices[a], self.vertices[b])
-    }
-    /// Longest edge over all triangles (the mesh size h).
-    pub fn h_max(&self) -> f64 {
-        (0..self.n_edges())
-            .map(|e| self.edge_length(e))
-            .fold(0.0, f64::max)
-    }
-    /// Tag of a physical name, if the file named it.
-    pub fn tag_by_name(&self, name: &str) -> Option<i32> {
-        self.physical_names
-            .iter()
-            .find(|(_, n)| n.as_str() == name)
-            .map(|(&t, _)| t)
-    }
-    /// Global edge index of the edge joining vertices a and b (either order).
-    /// A linear scan: for repeated queries use [`Mesh::edge_lookup`].
-    pub fn edge_index(&self, a: usize, b: usize) -> Option<usize> {
-        let key = [a.min(b), a.max(b)];
-        self.edges.iter().position(|&e| e == key)
-    }
-    /// Map from [a, b] (a < b) to the global edge index.
-    pub fn edge_lookup(&self) -> HashMap<[usize; 2], usize> {
-        self.edges
-            .iter()
-            .enumerate()
-            .map(|(i, &e)| (e, i))
-            .collect()
-    }
-    /// For each entry of `boundary_edges`, its global edge index.
-    pub fn boundary_edge_global_indices(&self) -> Vec<usize> {
-        let lookup = self.edge_lookup();
-        self.boundary_edges
-            .iter()
-            .filter_map(|be| {
-                let [a, b] = be.vertices;
-                lookup.get(&[a.min(b), a.max(b)]).copied()
-            })
-            .collect()
-    }
-    /// Flags the vertices on boundary edges whose tag is in `tags` (all tags if None).
-    pub fn boundary_vertex_mask(&self, tags: Option<&[i32]>) -> Vec<bool> {
-        let mut mask = vec![false; self.n_vertices()];
-        for be in self
-            .boundary_edges
-            .iter()
-            .filter(|be| tag_selected(be.tag, tags))
-        {
-            for &v in &be.vertices {
-                if let Some(m) = mask.get_mut(v) {
-                    *m = true;
-                }
-            }
-        }
-        mask
-    }
-    /// Flags the global edges that are boundary edges with a tag in `tags` (all if None).
-    pub fn boundary_edge_mask(&self, tags: Option<&[i32]>) -> Vec<bool> {
-        let lookup = self.edge_lookup();
-        let mut mask = vec![false; self.n_edges()];
-        for be in self
-            .boundary_edges
-            .iter()
-            .filter(|be| tag_selected(be.tag, tags))
-        {
-            let [a, b] = be.vertices;
-            if let Some(&e) = lookup.get(&[a.min(b), a.max(b)]) {
-                mask[e] = true;
-            }
-        }
-        mask
-    }
-}
-
-/// Finds the triangle containing a point, with a uniform bucket grid over
-/// the triangles' bounding boxes (built once, O(1) expected per query).
-/// Used to evaluate a field of one mesh at points of another (errors against
-/// a finer mesh) and at probe points (the gap at the origin).
-pub struct PointLocator<'m> {
-    mesh: &'m Mesh,
-    origin: [f64; 2],
-    cell: [f64; 2],
-    dims: [usize; 2],
-    buckets: Vec<Vec<usize>>,
-}
-
-impl<'m> PointLocator<'m> {
-    pub fn new(mesh: &'m Mesh) -> Self {
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for v in &mesh.vertices {
-            for d in 0..2 {
-                lo[d] = lo[d].min(v[d]);
-                hi[d] = hi[d].max(v[d]);
-            }
-        }
-        // About one triangle per bucket.
-        let side = (mesh.n_triangles().max(1) as f64).sqrt().ceil() as usize;
-        let dims = [side.max(1), side.max(1)];
-        let cell = [0, 1].map(|d| ((hi[d] - lo[d]) / dims[d] as f64).max(f64::MIN_POSITIVE));
-        let mut locator = PointLocator {
-            mesh,
-            origin: lo,
-            cell,
-            dims,
-            buckets: vec![Vec::new(); dims[0] * dims[1]],
-        };
-        for (t, tri) in mesh.triangles.iter().enumerate() {
-            let (mut a, mut b) = ([usize::MAX; 2], [0usize; 2]);
-            for &v in tri {
-                let c = locator.cell_of(mesh.vertices[v]);
-                for d in 0..2 {
-                    a[d] = a[d].min(c[d]);
-                    b[d] = b[d].max(c[d]);
-                }
-            }
-            for i in a[0]..=b[0] {
-                for j in a[1]..=b[1] {
-                    locator.buckets[i * dims[1] + j].push(t);
-                }
-            }
-        }
-        locator
-    }
-
-    fn cell_of(&self, x: [f64; 2]) -> [usize; 2] {
-        [0, 1].map(|d| {
-            let i = ((x[d] - self.origin[d]) / self.cell[d]).floor();
-            (i.max(0.0) as usize).min(self.dims[d] - 1)
-        })
-    }
-
-    /// The triangle containing `x` and its barycentric coordinates, allowing
-    /// points up to a relative 1e-10 outside a triangle (edges, round-off);
-    /// None outside the mesh.
-    pub fn locate(&self, x: [f64; 2]) -> Option<(usize, [f64; 3])> {
-        let c = self.cell_of(x);
-        let mut best: Option<(usize, [f64; 3], f64)> = None;
-        for &t in &self.buckets[c[0] * self.dims[1] + c[1]] {
-            let l = self.barycentric(t, x);
-            let worst = l.iter().fold(f64::INFINITY, |m, v| m.min(*v));
-            if best.as_ref().is_none_or(|b| worst > b.2) {
-                best = Some((t, l, worst));
-            }
-        }
-        best.filter(|b| b.2 >= -1e-10).map(|(t, l, _)| (t, l))
-    }
-
-    fn barycentric(&self, t: usize, x: [f64; 2]) -> [f64; 3] {
-        let [p0, p1, p2] = self.mesh.triangles[t].map(|v| self.mesh.vertices[v]);
-        let area = signed_area(p0, p1, p2);
-        [
-            signed_area(x, p1, p2) / area,
-            signed_area(p0, x, p2) / area,
-            signed_area(p0, p1, x) / area,
-        ]
-    }
-}
-
-fn tag_selected(tag: i32, tags: Option<&[i32]>) -> bool {
-    tags.is_none_or(|ts| ts.contains(&tag))
-}
-
-fn signed_area(p0: [f64; 2], p1: [f64; 2], p2: [f64; 2]) -> f64 {
-    0.5 * ((p1[0] - p0[0]) * (p2[1] - p0[1]) - (p2[0] - p0[0]) * (p1[1] - p0[1]))
-}
-
-fn dist(p: [f64; 2], q: [f64; 2]) -> f64 {
-    (q[0] - p[0]).hypot(q[1] - p[1])
-}
-
-// ---------------------------------------------------------------------------
-// Validation
-// ---------------------------------------------------------------------------
-
-/// How error messages name vertices, triangles and line elements.
-enum Labels {
-    /// Built in memory: zero-based indices.
-    Parts,
-    /// Read from a file: node tags and element numbers of the file.
-    File {
-        node_tags: Vec<usize>,
-        triangle_elements: Vec<usize>,
-        line_elements: Vec<usize>,
-    },
-}
-
-impl Labels {
-    fn node(&self, v: usize) -> String {
-        match self {
-            Labels::Parts => format!("{v}"),
-            Labels::File { node_tags, .. } => match node_tags.get(v) {
-                Some(tag) => format!("{tag}"),
-                None => format!("#{v}"),
-            },
-        }
-    }
-    fn vertex(&self, v: usize) -> String {
-        match self {
-            Labels::Parts => format!("vertex {v} (zero-based)"),
-            Labels::File { .. } => format!("node {}", self.node(v)),
-        }
-    }
-    fn triangle_id(&self, t: usize) -> String {
-        match self {
-            Labels::Parts => format!("triangle {t} (zero-based)"),
-            Labels::File {
-                triangle_elements, ..
-            } => match triangle_elements.get(t) {
-                Some(num) => format!("element {num} (triangle)"),
-                None => format!("triangle #{t}"),
-            },
-        }
-    }
-    fn triangle(&self, t: usize, tri: &[usize; 3]) -> String {
-        let nodes = |s: &Self| tri.iter().map(|&v| s.node(v)).collect::<Vec<_>>().join(" ");
-        match self {
-            Labels::Parts => format!("triangle {t} (zero-based; vertices {})", nodes(self)),
-            Labels::File {
-                triangle_elements, ..
-            } => match triangle_elements.get(t) {
-                Some(num) => format!("element {num} (triangle, nodes {})", nodes(self)),
-                None => format!("triangle #{t} (nodes {})", nodes(self)),
-            },
-        }
-    }
-    fn line(&self, l: usize, edge: &BoundaryEdge) -> String {
-        let [a, b] = edge.vertices;
-        match self {
-            Labels::Parts => format!(
-                "boundary edge {l} (zero-based; vertices {a} {b}, tag {})",
-                edge.tag
-            ),
-            Labels::File { line_elements, .. } => {
-                let nodes = format!("nodes {} {}, tag {}", self.node(a), self.node(b), edge.tag);
-                match line_elements.get(l) {
-                    Some(num) => format!("element {num} (line, {nodes})"),
-                    None => format!("line #{l} ({nodes})"),
-                }
-            }
-        }
-    }
-}
-
-fn build(
-    vertices: Vec<[f64; 2]>,
-    triangles: Vec<[usize; 3]>,
-    boundary_edges: Vec<BoundaryEdge>,
-    physical_names: BTreeMap<i32, String>,
-    source: PathBuf,
-    labels: &Labels,
-) -> Result<Mesh> {
-    let err = |reason: String| Error::mesh(source.clone(), reason);
-    let nv = vertices.len();
-
-    if triangles.is_empty() {
-        return Err(err(
-            "no triangles: the mesh has no 3-node triangle elements (MSH type 2); \
-             mesh in 2-D (`gmsh -2`) and put the surface in a Physical Surface"
-                .into(),
-        ));
-    }
-    for (v, p) in vertices.iter().enumerate() {
-        if !(p[0].is_finite() && p[1].is_finite()) {
-            return Err(err(format!(
-                "{}: non-finite coordinates ({}, {})",
-                labels.vertex(v),
-                p[0],
-                p[1]
-            )));
-        }
-    }
-    for (t, tri) in triangles.iter().enumerate() {
-        if let Some(&bad) = tri.iter().find(|&&v| v >= nv) {
-            return Err(err(format!(
-                "{}: node index {bad} is not defined (the mesh has {nv} vertices)",
-                labels.triangle_id(t),
-            )));
-        }
-    }
-    for (l, be) in boundary_edges.iter().enumerate() {
-        if let Some(&bad) = be.vertices.iter().find(|&&v| v >= nv) {
-            return Err(err(format!(
-                "boundary edge {l} (zero-based): node index {bad} is not defined \
-                 (the mesh has {nv} vertices)"
-            )));
-        }
-    }
-
-    // Per-triangle geometry.
-    for (t, tri) in triangles.iter().enumerate() {
-        let [p0, p1, p2] = tri.map(|v| vertices[v]);
-        let area = signed_area(p0, p1, p2);
-        let longest = dist(p0, p1).max(dist(p1, p2)).max(dist(p2, p0));
-        if !area.is_finite() || !longest.is_finite() {
-            return Err(err(format!(
-                "{}: the area is not finite (coordinates too large)",
-                labels.triangle(t, tri)
-            )));
-        }
-        if area.abs() <= DEGENERATE_RTOL * longest * longest {
-            return Err(err(format!(
-                "{}: degenerate triangle (area {area:e}, longest edge {longest:e}; \
-                 |area| <= {DEGENERATE_RTOL:e} * longest edge^2)",
-                labels.triangle(t, tri)
-            )));
-        }
-        if area < 0.0 {
-            return Err(err(format!(
-                "{}: inverted (clockwise) triangle, signed area {area:e} < 0; \
-                 triangles must be counter-clockwise (they are not reoriented: \
-                 FreeFEM rejects them too); fix the orientation of the surface \
-                 in the .geo file",
-                labels.triangle(t, tri)
-            )));
-        }
-    }
-
-    // Duplicate triangles (same vertex set).
-    let mut seen: HashMap<[usize; 3], usize> = HashMap::with_capacity(triangles.len());
-    for (t, tri) in triangles.iter().enumerate() {
-        let mut key = *tri;
-        key.sort_unstable();
-        if let Some(&first) = seen.get(&key) {
-            return Err(err(format!(
-                "{}: duplicate triangle, same vertices as {}",
-                labels.triangle(t, tri),
-                labels.triangle(first, &triangles[first])
-            )));
-        }
-        seen.insert(key, t);
-    }
-    drop(seen);
-
-    // Vertices used by no triangle.
-    let mut used = vec![false; nv];
-    for tri in &triangles {
-        for &v in tri {
-            used[v] = true;
-        }
-    }
-    if let Some(v) = used.iter().position(|&u| !u) {
-        let n_unused = used.iter().filter(|&&u| !u).count();
-        return Err(err(format!(
-            "{}: vertex used by no triangle ({n_unused} such vertices in all); \
-             stray nodes are not allowed",
-            labels.vertex(v)
-        )));
-    }
-
-    // Edges, in order of first appearance.
-    let mut edge_index: HashMap<[usize; 2], usize> = HashMap::with_capacity(2 * triangles.len());
-    let mut edges: Vec<[usize; 2]> = Vec::with_capacity(2 * triangles.len());
-    // For each edge: the triangles that hold it and the direction in the first one.
-    let mut edge_tris: Vec<(usize, Option<usize>, bool)> = Vec::with_capacity(2 * triangles.len());
-    let mut triangle_edges: Vec<[usize; 3]> = Vec::with_capacity(triangles.len());
-    for (t, tri) in triangles.iter().enumerate() {
-        let mut te = [0usize; 3];
-        for (i, slot) in te.iter_mut().enumerate() {
-            let a = tri[(i + 1) % 3];
-            let b = tri[(i + 2) % 3];
-            let key = [a.min(b), a.max(b)];
-            let forward = a < b;
-            let e = match edge_index.get(&key) {
-                Some(&e) => {
-                    let (t0, second, dir0) = edge_tris[e];
-                    if let Some(t1) = second {
-                        return Err(err(format!(
-                            "the edge between nodes {} and {} is shared by more than two \
-                             triangles ({}, {}, {}): not a valid 2-D triangulation",
-                            labels.node(key[0]),
-                            labels.node(key[1]),
-                            labels.triangle(t0, &triangles[t0]),
-                            labels.triangle(t1, &triangles[t1]),
-                            labels.triangle(t, tri)
-                        )));
-                    }
-                    if dir0 == forward {
-                        return Err(err(format!(
-                            "{} and {} overlap: both run along the edge between nodes {} and {} \
-                             in the same direction",
-                            labels.triangle(t0, &triangles[t0]),
-                            labels.triangle(t, tri),
-                            labels.node(key[0]),
-                            labels.node(key[1])
-                        )));
-                    }
-                    edge_tris[e].1 = Some(t);
-                    e
-                }
-                None => {
-                    let e = edges.len();
-                    edges.push(key);
-                    edge_tris.push((t, None, forward));
-                    edge_index.insert(key, e);
-                    e
-                }
-            };
-            *slot = e;
-        }
-        triangle_edges.push(te);
-    }
-
-    // Line elements must be boundary edges of the triangulation.
-    let mut covered = vec![false; edges.len()];
-    for (l, be) in boundary_edges.iter().enumerate() {
-        let [a, b] = be.vertices;
-        let key = [a.min(b), a.max(b)];
-        match edge_index.get(&key) {
-            None => {
-                return Err(err(format!(
-                    "{}: the line element is not a boundary edge of the triangulation \
-                     (it is not an edge of any triangle)",
-                    labels.line(l, be)
-                )))
-            }
-            Some(&e) => {
-                if edge_tris[e].1.is_some() {
-                    return Err(err(format!(
-                        "{}: the line element is not a boundary edge of the triangulation \
-                         (it is an interior edge, shared by two triangles); only boundary \
-                         curves may be physical lines",
-                        labels.line(l, be)
-                    )));
-                }
-                covered[e] = true;
-            }
-        }
-    }
-
-    // Every boundary edge of the triangulation carries a tag.
-    let missing: Vec<usize> = (0..edges.len())
-        .filter(|&e| edge_tris[e].1.is_none() && !covered[e])
-        .collect();
-    if let Some(&e) = missing.first() {
-        let [a, b] = edges[e];
-        let t = edge_tris[e].0;
-        return Err(err(format!(
-            "missing boundary tag: the boundary edge between nodes {} and {} (of {}) is \
-             covered by no tagged line element ({} such edges in all); put every boundary \
-             curve in a Physical Curve",
-            labels.node(a),
-            labels.node(b),
-            labels.triangle(t, &triangles[t]),
-            missing.len()
-        )));
-    }
-
-    Ok(Mesh {
-        vertices,
-        triangles,
-        boundary_edges,
-        physical_names,
-        edges,
-        triangle_edges,
-        source,
-    })
 }
 
 // ---------------------------------------------------------------------------
 // MSH 2.2 ASCII parser
 // ---------------------------------------------------------------------------
 
-struct Parsed {
+pub(super) struct Parsed {
     vertices: Vec<[f64; 2]>,
     node_tags: Vec<usize>,
     triangles: Vec<[usize; 3]>,
@@ -625,7 +45,7 @@ struct Parsed {
 }
 
 /// Lines of the file with their (one-based) numbers, blank lines skipped.
-struct Lines<'a> {
+pub(super) struct Lines<'a> {
     inner: std::iter::Enumerate<std::str::Lines<'a>>,
 }
 
@@ -642,7 +62,7 @@ impl<'a> Lines<'a> {
 }
 
 /// A short, safe excerpt of a line for error messages.
-fn excerpt(line: &str) -> String {
+pub(super) fn excerpt(line: &str) -> String {
     let mut s: String = line.chars().take(60).collect();
     if line.chars().nth(60).is_some() {
         s.push('…');
@@ -650,10 +70,10 @@ fn excerpt(line: &str) -> String {
     s
 }
 
-const MAX_PREALLOC: usize = 1 << 20;
+pub(super) const MAX_PREALLOC: usize = 1 << 20;
 
 /// Name of an MSH element type, for error messages.
-fn element_type_name(t: i64) -> &'static str {
+pub(super) fn element_type_name(t: i64) -> &'static str {
     match t {
         1 => "2-node line",
         2 => "3-node triangle",
@@ -675,7 +95,7 @@ fn element_type_name(t: i64) -> &'static str {
     }
 }
 
-fn parse_msh(text: &str) -> std::result::Result<Parsed, String> {
+pub(super) fn parse_msh(text: &str) -> std::result::Result<Parsed, String> {
     let mut lines = Lines {
         inner: text.lines().enumerate(),
     };
@@ -805,7 +225,7 @@ fn parse_msh(text: &str) -> std::result::Result<Parsed, String> {
 }
 
 /// The next line of a section, or a clear error at a truncation or an early `$End…`.
-fn entry<'a>(
+pub(super) fn entry<'a>(
     lines: &mut Lines<'a>,
     section: &str,
     start: usize,
@@ -827,7 +247,7 @@ fn entry<'a>(
     }
 }
 
-fn expect_end(
+pub(super) fn expect_end(
     lines: &mut Lines<'_>,
     section: &str,
     start: usize,
@@ -850,7 +270,7 @@ fn expect_end(
     }
 }
 
-fn parse_count(
+pub(super) fn parse_count(
     lines: &mut Lines<'_>,
     section: &str,
     start: usize,
@@ -873,7 +293,7 @@ fn parse_count(
     }
 }
 
-fn parse_format(lines: &mut Lines<'_>, start: usize) -> std::result::Result<(), String> {
+pub(super) fn parse_format(lines: &mut Lines<'_>, start: usize) -> std::result::Result<(), String> {
     let Some((ln, l)) = lines.next() else {
         return Err("truncated file: $MeshFormat has no version line".into());
     };
@@ -922,7 +342,7 @@ fn parse_format(lines: &mut Lines<'_>, start: usize) -> std::result::Result<(), 
     expect_end(lines, "MeshFormat", start, None)
 }
 
-fn parse_physical_names(
+pub(super) fn parse_physical_names(
     lines: &mut Lines<'_>,
     start: usize,
 ) -> std::result::Result<Vec<(i64, i32, String)>, String> {
@@ -950,9 +370,12 @@ fn parse_physical_names(
     Ok(out)
 }
 
-type NodeTable = (Vec<[f64; 2]>, Vec<usize>, HashMap<usize, usize>);
+pub(super) type NodeTable = (Vec<[f64; 2]>, Vec<usize>, HashMap<usize, usize>);
 
-fn parse_nodes(lines: &mut Lines<'_>, start: usize) -> std::result::Result<NodeTable, String> {
+pub(super) fn parse_nodes(
+    lines: &mut Lines<'_>,
+    start: usize,
+) -> std::result::Result<NodeTable, String> {
     let n = parse_count(lines, "Nodes", start)?;
     let cap = n.min(MAX_PREALLOC);
     let mut vertices = Vec::with_capacity(cap);
@@ -1009,7 +432,7 @@ fn parse_nodes(lines: &mut Lines<'_>, start: usize) -> std::result::Result<NodeT
 }
 
 #[allow(clippy::too_many_arguments)]
-fn parse_elements(
+pub(super) fn parse_elements(
     lines: &mut Lines<'_>,
     start: usize,
     tag_to_index: &HashMap<usize, usize>,
@@ -1105,7 +528,7 @@ fn parse_elements(
     expect_end(lines, "Elements", start, Some((n, "elements")))
 }
 
-fn skip_section(
+pub(super) fn skip_section(
     lines: &mut Lines<'_>,
     start: usize,
     name: &str,

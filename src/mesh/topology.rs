@@ -1,0 +1,67 @@
+//! Edges and boundary tags: edge lookup, boundary edge indices and masks.
+
+use super::*;
+
+impl Mesh {
+    /// Global edge index of the edge joining vertices a and b (either order).
+    /// A linear scan: for repeated queries use [`Mesh::edge_lookup`].
+    pub fn edge_index(&self, a: usize, b: usize) -> Option<usize> {
+        let key = [a.min(b), a.max(b)];
+        self.edges.iter().position(|&e| e == key)
+    }
+    /// Map from [a, b] (a < b) to the global edge index.
+    pub fn edge_lookup(&self) -> HashMap<[usize; 2], usize> {
+        self.edges
+            .iter()
+            .enumerate()
+            .map(|(i, &e)| (e, i))
+            .collect()
+    }
+    /// For each entry of `boundary_edges`, its global edge index.
+    pub fn boundary_edge_global_indices(&self) -> Vec<usize> {
+        let lookup = self.edge_lookup();
+        self.boundary_edges
+            .iter()
+            .filter_map(|be| {
+                let [a, b] = be.vertices;
+                lookup.get(&[a.min(b), a.max(b)]).copied()
+            })
+            .collect()
+    }
+    /// Flags the vertices on boundary edges whose tag is in `tags` (all tags if None).
+    pub fn boundary_vertex_mask(&self, tags: Option<&[i32]>) -> Vec<bool> {
+        let mut mask = vec![false; self.n_vertices()];
+        for be in self
+            .boundary_edges
+            .iter()
+            .filter(|be| tag_selected(be.tag, tags))
+        {
+            for &v in &be.vertices {
+                if let Some(m) = mask.get_mut(v) {
+                    *m = true;
+                }
+            }
+        }
+        mask
+    }
+    /// Flags the global edges that are boundary edges with a tag in `tags` (all if None).
+    pub fn boundary_edge_mask(&self, tags: Option<&[i32]>) -> Vec<bool> {
+        let lookup = self.edge_lookup();
+        let mut mask = vec![false; self.n_edges()];
+        for be in self
+            .boundary_edges
+            .iter()
+            .filter(|be| tag_selected(be.tag, tags))
+        {
+            let [a, b] = be.vertices;
+            if let Some(&e) = lookup.get(&[a.min(b), a.max(b)]) {
+                mask[e] = true;
+            }
+        }
+        mask
+    }
+}
+
+pub(super) fn tag_selected(tag: i32, tags: Option<&[i32]>) -> bool {
+    tags.is_none_or(|ts| ts.contains(&tag))
+}
