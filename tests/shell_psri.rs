@@ -413,3 +413,47 @@ fn thin_shell_in_contact() {
     let area = attr(&s, "contact_area");
     assert!(area > 9000.0, "contact area {area} of 10⁴");
 }
+
+/// Boundary conditions that cannot be stated are refused with the part, the
+/// field and the reason: a symmetry without its normal, a field the element
+/// does not have, a part named twice.
+#[test]
+fn bad_boundary_conditions_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            r#"shell.boundary=[{ part = "west", condition = "symmetry" }]"#,
+            "shell.boundary[0].normal",
+        ),
+        (
+            r#"shell.boundary=[{ part = "west", condition = "fixed", fix = ["r3"] }]"#,
+            "`r3` is no field of element p2b-psri",
+        ),
+        (
+            r#"shell.boundary=[{ part = "west", condition = "clamped" }, { part = "west", condition = "free" }]"#,
+            "has two conditions",
+        ),
+        (
+            r#"shell.boundary=[{ part = "nowhere", condition = "clamped" }]"#,
+            "no boundary part named `nowhere`",
+        ),
+    ];
+    for (set, expected) in cases {
+        let scene = Scene::load(
+            Path::new(PLATE),
+            &[set.to_string(), "output.plots=[]".into()],
+        );
+        let message = match scene {
+            Err(e) => e.to_string(),
+            Ok(scene) => run_scene(&scene, &dir.path().join("r.h5"), false)
+                .err()
+                .unwrap_or_else(|| panic!("{set}: accepted"))
+                .to_string(),
+        };
+        assert!(message.contains(expected), "{set}: {message}");
+        assert!(
+            message.contains("plate-clamped.toml"),
+            "{set}: names the file: {message}"
+        );
+    }
+}
