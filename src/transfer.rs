@@ -10,87 +10,11 @@
 use crate::assembly::quad_points;
 use crate::error::{Error, Result};
 use crate::mesh::{Mesh, PointLocator};
+use crate::output::blocks::{components, components_in_space, result_mesh, Component};
 use crate::output::ResultFile;
 use crate::quadrature::TriangleRule;
-use crate::space::{Element, Space, TriangleGeometry};
-use std::path::{Path, PathBuf};
-
-/// One scalar component of a stored coefficient vector.
-pub struct Component<'a> {
-    pub name: String,
-    pub element: Element,
-    pub coefficients: &'a [f64],
-}
-
-/// Splits `/dofs/<name>` of a result into its scalar components, telling the
-/// element from the length: k·(Nv + Nt) is k blocks of P1⊕B3 (named
-/// name1..namek when k > 1), Nt is P0, Nv is P1.
-pub fn components<'a>(
-    name: &str,
-    dofs: &'a [f64],
-    n_vertices: usize,
-    n_triangles: usize,
-) -> Option<Vec<Component<'a>>> {
-    let n_scalar = n_vertices + n_triangles;
-    let single = |element| {
-        Some(vec![Component {
-            name: name.to_string(),
-            element,
-            coefficients: dofs,
-        }])
-    };
-    if dofs.len() == n_triangles {
-        single(Element::P0)
-    } else if dofs.len() == n_vertices {
-        single(Element::P1)
-    } else if !dofs.is_empty() && dofs.len().is_multiple_of(n_scalar) {
-        let k = dofs.len() / n_scalar;
-        Some(
-            (0..k)
-                .map(|c| Component {
-                    name: if k == 1 {
-                        name.to_string()
-                    } else {
-                        format!("{name}{}", c + 1)
-                    },
-                    element: Element::P1Bubble,
-                    coefficients: &dofs[c * n_scalar..(c + 1) * n_scalar],
-                })
-                .collect(),
-        )
-    } else {
-        None
-    }
-}
-
-/// Splits `/dofs/<name>` into the k blocks of `element` its `space`
-/// attribute names (named name1..namek when k > 1).
-pub fn components_in_space<'a>(
-    name: &str,
-    dofs: &'a [f64],
-    mesh: &Mesh,
-    element: Element,
-    k: usize,
-) -> Option<Vec<Component<'a>>> {
-    let n = Space::new(mesh, element).n_dofs();
-    if k == 0 || dofs.len() != k * n {
-        return None;
-    }
-    Some(
-        dofs.chunks(n)
-            .enumerate()
-            .map(|(c, coefficients)| Component {
-                name: if k == 1 {
-                    name.to_string()
-                } else {
-                    format!("{name}{}", c + 1)
-                },
-                element,
-                coefficients,
-            })
-            .collect(),
-    )
-}
+use crate::space::{Space, TriangleGeometry};
+use std::path::Path;
 
 /// ‖f_coarse − f_fine‖_{L²} / ‖f_fine‖_{L²}, both integrated over the fine mesh.
 pub fn relative_l2_error(
@@ -133,15 +57,6 @@ pub fn prolong(coarse: &Space, coarse_c: &[f64], locator: &PointLocator, fine: &
             .locate(x)
             .map_or(0.0, |(t, l)| coarse.evaluate(coarse_c, t, l))
     })
-}
-
-/// A result file's mesh (vertices and triangles only).
-pub fn result_mesh(file: &ResultFile, path: &Path) -> Result<Mesh> {
-    Mesh::from_triangles(
-        file.vertices.clone(),
-        file.triangles.clone(),
-        PathBuf::from(path),
-    )
 }
 
 /// Relative L² errors of every component of the fields `names` of `coarse`
@@ -211,6 +126,7 @@ fn stored_components<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::space::Element;
 
     fn square(n: usize) -> Mesh {
         let mut vertices = Vec::new();

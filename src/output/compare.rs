@@ -7,6 +7,7 @@
 //! own space: the `space` attribute of `/dofs/<name>` (P0, P1, P1b, P2, P2b,
 //! `^k` blocks), else told from the length (P0, P1, P2 or blocks of P1⊕B3).
 
+use super::blocks::{components, result_mesh};
 use super::ResultFile;
 use crate::assembly::quad_points;
 use crate::error::{Error, Result};
@@ -14,7 +15,6 @@ use crate::mesh::Mesh;
 use crate::output::Location;
 use crate::quadrature::TriangleRule;
 use crate::space::{Element, Space, TriangleGeometry};
-use crate::transfer::{components, result_mesh};
 use std::path::Path;
 
 /// One compared quantity.

@@ -3,6 +3,7 @@
 //!
 //! Models fill a [`ResultData`]; this module knows nothing about membranes or shells.
 
+pub mod blocks;
 pub mod compare;
 pub mod hdf5_io;
 pub mod xdmf;
