@@ -170,13 +170,15 @@ study: build
 # shell benchmarks, beside the thesis' p1b-p0 (docs/shell-benchmarks.md):
 # the clamped plate over ε = 0.8 … 0.008, the Scordelis–Lo roof, the partly
 # clamped hyperbolic paraboloid over t/L = 1e-2 … 1e-4, and the thesis' shell
-# in contact with the new element, n = 16 … 128.
+# in contact with the new element, n = 16 … 128, and both elements' error in
+# u3 min and ∫λ against wall time (work-precision-shell-elements-*.png).
 .PHONY: shell-benchmarks
 shell-benchmarks: build
 	$(BIN) study pipelines/studies/shell-plate.toml --out-dir $(STUDIES)
 	$(BIN) study pipelines/studies/shell-roof.toml --out-dir $(STUDIES)
 	$(BIN) study pipelines/studies/shell-hypar.toml --out-dir $(STUDIES)
 	$(BIN) study pipelines/studies/naghdi-refinement-psri.toml --out-dir $(STUDIES)
+	$(BIN) study pipelines/studies/work-precision-shell-elements.toml --out-dir $(STUDIES)
 
 # The hard cases with the locking-free element (every case's element set to
 # p2b-psri; docs/hard-cases.md, second table). Expectations are the thesis
