@@ -32,8 +32,7 @@ use crate::models::{contact_fields, named_boundary_tags, vertex_field};
 use crate::output::{space_tag, write_result, AttrValue, Field, Location, ResultData};
 use crate::pipeline::scene_mesh;
 use crate::scene::{
-    Alpha, AlphaKeyword, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm,
-    StopRule,
+    Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
 };
 use crate::solvers::spectrum::estimate_dual_spectrum;
 use crate::space::{Element, Space};
@@ -307,49 +306,36 @@ pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> Uzawa
 /// The scene's α; "auto" is the Rust run's choice, 2/(s_max + s_min) capped
 /// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled problem.
 pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
-    if let Some(factor) = scene.solver.alpha_factor {
-        // α = factor × 2/s_max, as the Rust run (pipeline.rs).
-        let system = crate::pipeline::setup_model(scene, mesh)?;
-        let problem = system.assemble(scene)?;
-        let f = factorize_checked(
-            &problem.matrix,
-            problem.kind,
-            Solves::Many,
-            "α = alpha_factor × 2/s_max (Lanczos)",
-        )?;
-        let step_form = scene.solver.step_form.unwrap_or(StepForm::Mean);
-        return match estimate_dual_spectrum(&problem, &f, step_form, 50) {
-            Some(s) => Ok(factor * 2.0 / s.s_max),
-            None => Err(scene_error(
+    let solver = &scene.solver;
+    match (solver.alpha_factor, solver.alpha) {
+        (None, Some(Alpha::Value(a))) => return Ok(a),
+        (None, None) => {
+            return Err(scene_error(
                 scene,
-                "solver.alpha_factor",
-                "no estimate of s_max (no constraint rows): give `alpha` instead",
-            )),
-        };
-    }
-    match scene.solver.alpha {
-        Some(Alpha::Value(a)) => Ok(a),
-        None => Err(scene_error(
-            scene,
-            "solver.alpha",
-            "FreeFEM runs Uzawa, which needs a step α (a number or \"auto\")",
-        )),
-        Some(Alpha::Keyword(_)) => {
-            let system = crate::pipeline::setup_model(scene, mesh)?;
-            let problem = system.assemble(scene)?;
-            let f = factorize_checked(
-                &problem.matrix,
-                problem.kind,
-                Solves::Many,
-                "α = auto (Lanczos)",
-            )?;
-            let step_form = scene.solver.step_form.unwrap_or(StepForm::Mean);
-            Ok(crate::pipeline::choose_alpha(
-                Alpha::Keyword(AlphaKeyword::Auto),
-                estimate_dual_spectrum(&problem, &f, step_form, 50),
+                "solver.alpha",
+                "FreeFEM runs Uzawa, which needs a step α (a number or \"auto\")",
             ))
         }
+        _ => {}
     }
+    // α = auto or alpha_factor × 2/s_max: the Rust run's Lanczos estimate.
+    let system = crate::pipeline::setup_model(scene, mesh)?;
+    let problem = system.assemble(scene)?;
+    let f = factorize_checked(
+        &problem.matrix,
+        problem.kind,
+        Solves::Many,
+        "α from the Lanczos estimate of s_max",
+    )?;
+    let step_form = solver.step_form.unwrap_or(StepForm::Mean);
+    let spectrum = estimate_dual_spectrum(&problem, &f, step_form, 50);
+    crate::pipeline::uzawa_step(solver, spectrum).ok_or_else(|| {
+        scene_error(
+            scene,
+            "solver.alpha_factor",
+            "no estimate of s_max (no constraint rows): give `alpha` instead",
+        )
+    })
 }
 
 /// The script's command line for `scene` (mesh file, data, Uzawa plan);

@@ -10,7 +10,7 @@ use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
 use crate::output::{numeric_attr, write_result, AttrValue, Location, ResultData};
 use crate::plot;
-use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, StepForm};
+use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
 use crate::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
 use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
@@ -94,6 +94,20 @@ pub fn choose_alpha(alpha: Alpha, spectrum: Option<SpectrumEstimate>) -> f64 {
         (Alpha::Value(a), _) => a,
         (Alpha::Keyword(_), Some(s)) => (2.0 / (s.s_max + s.s_min)).min(1.9 / s.s_max),
         (Alpha::Keyword(_), None) => 1.0,
+    }
+}
+
+/// Uzawa's step for a solver spec: `alpha_factor` × 2/s_max (the hard
+/// cases), else [`choose_alpha`]. None when a factor is given but there is
+/// no estimate of s_max (no constraint rows); the caller says so.
+pub fn uzawa_step(solver: &SolverSpec, spectrum: Option<SpectrumEstimate>) -> Option<f64> {
+    match (solver.alpha_factor, spectrum) {
+        (Some(factor), Some(s)) => Some(factor * 2.0 / s.s_max),
+        (Some(_), None) => None,
+        (None, _) => Some(choose_alpha(
+            solver.alpha.expect("validated with an obstacle"),
+            spectrum,
+        )),
     }
 }
 
@@ -299,18 +313,13 @@ fn solve(
     }
     let step_form = solver.step_form.unwrap_or(StepForm::Mean);
     let spectrum = estimate_dual_spectrum(problem, &factorization, step_form, 50);
-    let alpha = match (solver.alpha_factor, spectrum) {
-        // α as a multiple of the stability bound 2/s_max (hard cases).
-        (Some(factor), Some(s)) => factor * 2.0 / s.s_max,
-        (Some(_), None) => {
-            return Err(Error::numerical(
-                "Uzawa",
-                "solver.alpha_factor",
-                "no estimate of s_max (no constraint rows): give `alpha` instead",
-            ))
-        }
-        (None, _) => choose_alpha(solver.alpha.expect("validated with an obstacle"), spectrum),
-    };
+    let alpha = uzawa_step(solver, spectrum).ok_or_else(|| {
+        Error::numerical(
+            "Uzawa",
+            "solver.alpha_factor",
+            "no estimate of s_max (no constraint rows): give `alpha` instead",
+        )
+    })?;
     let options = UzawaOptions {
         alpha,
         step_form,
