@@ -131,6 +131,13 @@ fn check_solve(
     Ok((x, rel))
 }
 
+/// The symbolic LU analysis of `a`'s pattern.
+fn lu_analysis(a: &SparseColMat<usize, f64>, what: &str) -> Result<SymbolicAnalysis> {
+    SymbolicLu::try_new(a.symbolic())
+        .map(SymbolicAnalysis::Lu)
+        .map_err(|e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")))
+}
+
 /// A fixed, dense, non-trivial right-hand side for test solves.
 fn test_rhs(n: usize) -> Vec<f64> {
     (0..n)
@@ -213,10 +220,7 @@ impl ReusableFactorization {
             ));
         }
         let symbolic = match kind {
-            MatrixKind::General => SymbolicAnalysis::Lu(
-                SymbolicLu::try_new(a.symbolic())
-                    .map_err(|e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")))?,
-            ),
+            MatrixKind::General => lu_analysis(a, what)?,
             MatrixKind::SymmetricSaddle { n_primal } => SymbolicAnalysis::Ldlt {
                 symbolic: Arc::new(analyze_symmetric(a, n_primal, solves, what)?),
                 n_primal,
@@ -304,12 +308,7 @@ impl ReusableFactorization {
                     self.numeric_factorizations += 1;
                     return Ok(done);
                 }
-                self.symbolic = SymbolicAnalysis::Lu(
-                    SymbolicLu::try_new(a.symbolic())
-                        .map_err(|e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")))?,
-                );
-                self.symbolic_analyses += 1;
-                return self.factorize_and_solve(a, b, what);
+                return self.retry_with(lu_analysis(a, what)?, a, b, what);
             }
             SymbolicAnalysis::Ldlt { symbolic, n_primal } => {
                 let ldlt = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what).ok();
@@ -325,12 +324,7 @@ impl ReusableFactorization {
                         // accuracy (the signs are not the matrix's inertia,
                         // or the matrix defeats the regularisation): LU from
                         // now on.
-                        self.symbolic =
-                            SymbolicAnalysis::Lu(SymbolicLu::try_new(a.symbolic()).map_err(
-                                |e| Error::numerical(what, "LU (symbolic)", format!("{e:?}")),
-                            )?);
-                        self.symbolic_analyses += 1;
-                        return self.factorize_and_solve(a, b, what);
+                        return self.retry_with(lu_analysis(a, what)?, a, b, what);
                     }
                 }
             }
@@ -358,15 +352,28 @@ impl ReusableFactorization {
                 // round-off equilibrated and refined.
                 let n = a.nrows();
                 let symbolic = analyze_symmetric(a, n, Solves::Few, what).map_err(|_| e)?;
-                self.symbolic = SymbolicAnalysis::Ldlt {
+                let ldlt = SymbolicAnalysis::Ldlt {
                     symbolic: Arc::new(symbolic),
                     n_primal: n,
                 };
-                self.symbolic_analyses += 1;
-                self.factorize_and_solve(a, b, what)
+                self.retry_with(ldlt, a, b, what)
             }
             Err(e) => Err(e),
         }
+    }
+
+    /// A fallback: a new symbolic analysis from now on, and the numeric
+    /// factorisation and solve again with it.
+    fn retry_with(
+        &mut self,
+        symbolic: SymbolicAnalysis,
+        a: &SparseColMat<usize, f64>,
+        b: &[f64],
+        what: &str,
+    ) -> Result<(Factorization, Vec<f64>, f64)> {
+        self.symbolic = symbolic;
+        self.symbolic_analyses += 1;
+        self.factorize_and_solve(a, b, what)
     }
 
     /// The factorisation in use: "Cholesky", "LDLᵀ" or "LU" (after a
