@@ -827,6 +827,10 @@ pub fn plane_constraint(
     let space = Space::new(mesh, Element::P1Bubble);
     let rule = TriangleRule::exact_for(5);
     let half_eps = 0.5 * material.thickness;
+    // u3 and r3 with their constant weights (a3 plays no part: r3 = r·e3).
+    let terms: Vec<(usize, f64)> = (0..layout.fields.len())
+        .filter_map(|f| constraint_factor(layout.fields[f].role, None, half_eps).map(|w| (f, w)))
+        .collect();
     let mut c_full = Triplets::new(mesh.n_triangles(), layout.n_total());
     let mut obstacle = Vec::with_capacity(mesh.n_triangles());
     let mut weights = Vec::with_capacity(mesh.n_triangles());
@@ -843,12 +847,11 @@ pub fn plane_constraint(
             }
         }
         for k in 0..N_LOCAL {
-            c_full
-                .entries
-                .push((t, layout.index(2, scalar[k]), integrals[k]));
-            c_full
-                .entries
-                .push((t, layout.index(5, scalar[k]), -half_eps * integrals[k]));
+            for (f, factor) in &terms {
+                c_full
+                    .entries
+                    .push((t, layout.index(*f, scalar[k]), factor * integrals[k]));
+            }
         }
         let tri = mesh.triangles[t];
         obstacle.push(g.area * (phi[tri[0]] + phi[tri[1]] + phi[tri[2]]) / 3.0);
@@ -861,6 +864,19 @@ pub fn plane_constraint(
         matrix: c.into_sparse(),
         obstacle,
         weights,
+    }
+}
+
+/// The weight of a field in the constraint function (u − ε/2 r)·e3 at a
+/// point of the chart: 1 for u3, −ε/2 for r3, −ε/2 a_β·e3 for θ^β (the point
+/// is needed for that one; None asks only whether the field enters, with a
+/// placeholder weight), None for the fields that do not enter.
+pub fn constraint_factor(role: FieldRole, p: Option<&SurfacePoint>, half_eps: f64) -> Option<f64> {
+    match role {
+        FieldRole::Displacement(2) => Some(1.0),
+        FieldRole::CartesianRotation(2) => Some(-half_eps),
+        FieldRole::TangentRotation(be) => Some(-half_eps * p.map_or(1.0, |p| p.a(be).z)),
+        _ => None,
     }
 }
 
@@ -888,49 +904,39 @@ pub fn nodal_plane_constraint(
     // The fields that enter (u − ε/2 r)·e3.
     let terms: Vec<&ShellField> = layout
         .u_fields()
-        .filter(|f| {
-            matches!(
-                f.role,
-                FieldRole::Displacement(2)
-                    | FieldRole::TangentRotation(_)
-                    | FieldRole::CartesianRotation(2)
-            )
-        })
+        .filter(|f| constraint_factor(f.role, None, half_eps).is_some())
         .collect();
     for t in 0..mesh.n_triangles() {
         let g = TriangleGeometry::new(mesh, t);
         let tri = mesh.triangles[t];
-        for field in &terms {
-            let (dofs, n) = Space::new(mesh, field.element).element_dofs(t);
-            let mut local = [[0.0; crate::space::MAX_LOCAL]; 3];
-            for q in quad_points(&g, t, &rule) {
-                let p = chart.at(q.x);
-                let factor = match field.role {
-                    FieldRole::Displacement(_) => 1.0,
-                    FieldRole::CartesianRotation(_) => -half_eps,
-                    FieldRole::TangentRotation(be) => -half_eps * p.a(be).z,
-                    FieldRole::TangencyMultiplier => 0.0,
-                };
+        // ∫_T factor · φ_k μ_i per field, vertex i and local dof k.
+        let mut local = vec![[[0.0; crate::space::MAX_LOCAL]; 3]; terms.len()];
+        for q in quad_points(&g, t, &rule) {
+            let p = chart.at(q.x);
+            for (field, rows) in terms.iter().zip(local.iter_mut()) {
+                let factor =
+                    constraint_factor(field.role, Some(&p), half_eps).expect("a constraint term");
                 let b = field.element.basis(q.lambda);
-                for (i, row) in local.iter_mut().enumerate() {
-                    for k in 0..n {
+                for (i, row) in rows.iter_mut().enumerate() {
+                    for k in 0..b.n {
                         row[k] += q.weight * q.lambda[i] * factor * b.values[k];
                     }
                 }
             }
-            for (i, row) in local.iter().enumerate() {
+            let phi = obstacle_function(&p, material.thickness) + level;
+            for i in 0..3 {
+                obstacle[tri[i]] += q.weight * phi * q.lambda[i];
+                weights[tri[i]] += q.weight * q.lambda[i];
+            }
+        }
+        for (field, rows) in terms.iter().zip(&local) {
+            let (dofs, n) = Space::new(mesh, field.element).element_dofs(t);
+            for (i, row) in rows.iter().enumerate() {
                 for k in 0..n {
                     c_full
                         .entries
                         .push((tri[i], field.offset + dofs[k], row[k]));
                 }
-            }
-        }
-        for q in quad_points(&g, t, &rule) {
-            let phi = obstacle_function(&chart.at(q.x), material.thickness) + level;
-            for i in 0..3 {
-                obstacle[tri[i]] += q.weight * phi * q.lambda[i];
-                weights[tri[i]] += q.weight * q.lambda[i];
             }
         }
     }

@@ -13,7 +13,7 @@
 //!   on r3 = 0) disappear and K is symmetric positive definite (Cholesky).
 
 use super::forms::{
-    add_edge_load, assemble_shell_layout, balanced_tangency_scale, fix_fields,
+    add_edge_load, assemble_shell_layout, balanced_tangency_scale, constraint_factor, fix_fields,
     nodal_plane_constraint, obstacle_at_vertices, plane_constraint, restrict_shell,
     scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
 };
@@ -368,11 +368,8 @@ impl<'m> NaghdiSystem<'m> {
             .fields
             .iter()
             .enumerate()
-            .filter_map(|(f, field)| match field.role {
-                FieldRole::Displacement(2) => Some((f, 1.0)),
-                FieldRole::CartesianRotation(2) => Some((f, -half_eps)),
-                FieldRole::TangentRotation(be) => Some((f, -half_eps * p.a(be).z)),
-                _ => None,
+            .filter_map(|(f, field)| {
+                constraint_factor(field.role, Some(&p), half_eps).map(|w| (f, w))
             })
             .collect()
     }
