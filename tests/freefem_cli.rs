@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::{manifest_path, obstacle, obstacle_output, solver_attr};
+use common::{obstacle, obstacle_output, scene_arg, set_args, solver_attr};
 use obstacle_fem::output::compare::compare_results;
 use obstacle_fem::output::{read_result, AttrValue};
 use std::path::{Path, PathBuf};
@@ -19,22 +19,9 @@ const K: usize = 100;
 /// Iterates after K steps: agreement to round-off, asserted to 1e-8.
 const RTOL: f64 = 1e-8;
 
-fn scene(name: &str) -> String {
-    manifest_path(&format!("pipelines/scenes/{name}.toml"))
-        .display()
-        .to_string()
-}
-
-fn sets(pairs: &[&str]) -> Vec<String> {
-    pairs
-        .iter()
-        .flat_map(|p| ["--set".to_string(), p.to_string()])
-        .collect()
-}
-
 /// Exactly K iterations for `solve` (a thesis tolerance never met), no plots.
 fn fixed_k() -> Vec<String> {
-    sets(&[
+    set_args(&[
         "solver.stop=thesis",
         "solver.thesis_tol=1e-300",
         &format!("solver.max_iter={K}"),
@@ -44,7 +31,7 @@ fn fixed_k() -> Vec<String> {
 
 fn solve(dir: &Path, name: &str, scene_name: &str, extra: &[String]) -> PathBuf {
     let out = dir.join(format!("{name}.h5"));
-    let mut args = vec!["solve".into(), scene(scene_name)];
+    let mut args = vec!["solve".into(), scene_arg(scene_name)];
     args.extend_from_slice(extra);
     args.extend(["--quiet".into(), "--out".into(), out.display().to_string()]);
     obstacle(&args);
@@ -53,7 +40,7 @@ fn solve(dir: &Path, name: &str, scene_name: &str, extra: &[String]) -> PathBuf 
 
 fn freefem(dir: &Path, name: &str, scene_name: &str, extra: &[String]) -> PathBuf {
     let out = dir.join(format!("{name}.h5"));
-    let mut args = vec!["freefem".into(), scene(scene_name)];
+    let mut args = vec!["freefem".into(), scene_arg(scene_name)];
     args.extend_from_slice(extra);
     args.extend(["--out".into(), out.display().to_string()]);
     obstacle(&args);
@@ -100,7 +87,7 @@ fn freefem_command_matches_rust_after_k_iterations() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     for (element, alpha) in [("p1b-p0", "1.9"), ("p2-p1", "auto")] {
-        let mut extra = sets(&[
+        let mut extra = set_args(&[
             "mesh.n=8",
             &format!("element={element}"),
             &format!("solver.alpha={alpha}"),
@@ -144,7 +131,7 @@ fn compare_fails_beyond_tolerance_and_on_bad_input() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let run = |name: &str, set: &[&str]| {
-        let mut extra = sets(set);
+        let mut extra = set_args(set);
         extra.extend(fixed_k());
         solve(d, name, "obstacle-disk", &extra)
     };
@@ -223,7 +210,7 @@ fn converged_solutions_agree_to_the_stopping_tolerance() {
             d,
             &format!("as-{element}"),
             "obstacle-disk",
-            &sets(&rust_set),
+            &set_args(&rust_set),
         );
         let mut ff_set = base;
         ff_set.extend([
@@ -236,7 +223,7 @@ fn converged_solutions_agree_to_the_stopping_tolerance() {
             d,
             &format!("ffc-{element}"),
             "obstacle-disk",
-            &sets(&ff_set),
+            &set_args(&ff_set),
         );
         let r = read_result(&ff).unwrap();
         assert_eq!(

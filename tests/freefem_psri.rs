@@ -25,7 +25,7 @@
 
 mod common;
 
-use common::{dofs, manifest_path, obstacle, rel_diff, solver_attr};
+use common::{dofs, manifest_path, obstacle, rel_diff, scene_arg, set_args, solver_attr};
 use obstacle_fem::freefem::psri_fix_spec;
 use obstacle_fem::output::compare::compare_results;
 use obstacle_fem::output::{read_result, AttrValue, ResultFile};
@@ -41,19 +41,6 @@ const K: usize = 20;
 /// bound (α = auto is about 0.05 on this mesh, mean form); λ is active after
 /// 20 steps.
 const ALPHA: f64 = 0.02;
-
-fn scene(rel: &str) -> String {
-    manifest_path(&format!("pipelines/scenes/{rel}.toml"))
-        .display()
-        .to_string()
-}
-
-fn sets(pairs: &[&str]) -> Vec<String> {
-    pairs
-        .iter()
-        .flat_map(|p| ["--set".to_string(), p.to_string()])
-        .collect()
-}
 
 /// `obstacle solve` and `obstacle freefem` on the same scene file and
 /// overrides; the two result files and the wall times of the two processes.
@@ -123,8 +110,13 @@ fn assert_agree(rust: &Path, ff: &Path, names: &[&str], label: &str) -> f64 {
 #[test]
 fn clamped_plate_free_matches_freefem() {
     let dir = tempfile::tempdir().unwrap();
-    let extra = sets(&["mesh.n=8", "output.plots=[]"]);
-    let (rust, ff, rs, fs) = both(dir.path(), "plate", &scene("shell/plate-clamped"), &extra);
+    let extra = set_args(&["mesh.n=8", "output.plots=[]"]);
+    let (rust, ff, rs, fs) = both(
+        dir.path(),
+        "plate",
+        &scene_arg("shell/plate-clamped"),
+        &extra,
+    );
     let worst = assert_agree(&rust, &ff, &["u", "theta"], "plate 8×8");
     let r = read_result(&ff).unwrap();
     // Blocks of P2 or P2b: 81 vertices, 208 edges, 128 triangles.
@@ -157,7 +149,7 @@ fn hypar_contact_after_k_uzawa_iterations_matches_freefem() {
     let dir = tempfile::tempdir().unwrap();
     let alpha = format!("solver.alpha={ALPHA}");
     let max_iter = format!("solver.max_iter={K}");
-    let extra = sets(&[
+    let extra = set_args(&[
         "mesh.n=8",
         "solver.method=uzawa",
         &alpha,
@@ -168,7 +160,7 @@ fn hypar_contact_after_k_uzawa_iterations_matches_freefem() {
         &max_iter,
         "output.plots=[]",
     ]);
-    let (rust, ff, rs, fs) = both(dir.path(), "hypar", &scene("shell/hypar-psri"), &extra);
+    let (rust, ff, rs, fs) = both(dir.path(), "hypar", &scene_arg("shell/hypar-psri"), &extra);
     let worst = assert_agree(&rust, &ff, &["u", "theta", "lambda"], "hypar n=8, K=20");
     let (a, b) = (read_result(&rust).unwrap(), read_result(&ff).unwrap());
     assert_eq!(solver_attr(&b, "iterations"), &AttrValue::I64(K as i64));
@@ -226,7 +218,7 @@ fn roof_boundary_conditions_match_freefem() {
         .replace("GEO", &geo.display().to_string())
         .replace("ELEMENT", &psri_element());
     std::fs::write(&file, text).unwrap();
-    let extra = sets(&["output.plots=[]"]);
+    let extra = set_args(&["output.plots=[]"]);
     let (rust, ff, rs, fs) = both(dir.path(), "roof", &file.display().to_string(), &extra);
     let worst = assert_agree(&rust, &ff, &["u", "theta"], "Scordelis-Lo n=4");
     let r = read_result(&ff).unwrap();

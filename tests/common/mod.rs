@@ -269,3 +269,18 @@ pub fn mirror_map(points: &[[f64; 2]], f: impl Fn([f64; 2]) -> [f64; 2], tol: f6
         })
         .collect()
 }
+
+/// The path of `pipelines/scenes/<rel>.toml`, as a command-line argument.
+pub fn scene_arg(rel: &str) -> String {
+    manifest_path(&format!("pipelines/scenes/{rel}.toml"))
+        .display()
+        .to_string()
+}
+
+/// `--set` arguments for each override.
+pub fn set_args(pairs: &[&str]) -> Vec<String> {
+    pairs
+        .iter()
+        .flat_map(|p| ["--set".to_string(), p.to_string()])
+        .collect()
+}
