@@ -28,13 +28,14 @@ use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::Mesh;
 use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, ShellLayout};
 use crate::models::naghdi::geometry::Chart;
-use crate::models::{contact_fields, named_boundary_tags, vertex_field};
-use crate::output::{space_tag, write_result, AttrValue, Field, Location, ResultData};
-use crate::pipeline::scene_mesh;
+use crate::models::named_boundary_tags;
+use crate::output::{write_result, AttrValue, ResultData};
+use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
     Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
 };
 use crate::solvers::spectrum::estimate_dual_spectrum;
+use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
@@ -304,8 +305,8 @@ pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> Uzawa
 }
 
 /// The scene's α; "auto" is the Rust run's choice, 2/(s_max + s_min) capped
-/// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled problem.
-pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
+/// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled `problem`.
+pub fn resolve_alpha(scene: &Scene, problem: &ContactProblem) -> Result<f64> {
     let solver = &scene.solver;
     match (solver.alpha_factor, solver.alpha) {
         (None, Some(Alpha::Value(a))) => return Ok(a),
@@ -319,8 +320,6 @@ pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
         _ => {}
     }
     // α = auto or alpha_factor × 2/s_max: the Rust run's Lanczos estimate.
-    let system = crate::pipeline::setup_model(scene, mesh)?;
-    let problem = system.assemble(scene)?;
     let f = factorize_checked(
         &problem.matrix,
         problem.kind,
@@ -328,7 +327,7 @@ pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
         "α from the Lanczos estimate of s_max",
     )?;
     let step_form = solver.step_form.unwrap_or(StepForm::Mean);
-    let spectrum = estimate_dual_spectrum(&problem, &f, step_form, 50);
+    let spectrum = estimate_dual_spectrum(problem, &f, step_form, 50);
     crate::pipeline::uzawa_step(solver, spectrum).ok_or_else(|| {
         scene_error(
             scene,
@@ -823,9 +822,16 @@ pub fn run_freefem_scene(
         None => out.with_extension("msh"),
     };
     let mesh = scene_mesh(scene, &msh)?;
-    let psri = scene.model == Model::Naghdi && scene.element == ElementPair::P2bPsri;
+    // The Rust model of the same scene: α = auto comes from its problem, and
+    // its result builder turns FreeFEM's coefficients into the result file.
+    let system = setup_model(scene, &mesh)?;
+    let problem = system.assemble()?;
     let plan = match &scene.obstacle {
-        Some(_) => Some(uzawa_plan(scene, resolve_alpha(scene, &mesh)?, iterations)),
+        Some(_) => Some(uzawa_plan(
+            scene,
+            resolve_alpha(scene, &problem)?,
+            iterations,
+        )),
         None => None,
     };
     let work = tempfile::Builder::new()
@@ -840,11 +846,14 @@ pub fn run_freefem_scene(
     let file = |ext: &str| PathBuf::from(format!("{}.{ext}", prefix.display()));
     check_mesh_order(&mesh, &file("mesh.txt"))?;
     let info = Info::read(&file("info.txt"))?;
-    let mut data = match scene.model {
-        Model::Membrane => membrane_data(scene, &mesh, &file)?,
-        Model::Naghdi if psri => psri_data(scene, &mesh, &info, &file)?,
-        Model::Naghdi => naghdi_data(scene, &mesh, &file)?,
+    let twin = TwinSolution::read(scene, &mesh, &info, &file)?;
+    let report = SolveReport {
+        x: system.primal_from_dofs(&twin.dofs)?,
+        lambda: twin.lambda.clone(),
+        ..Default::default()
     };
+    let mut data = system.results(&problem, &report);
+    twin.check_contact_fields(&data)?;
     let it = info.usize("iterations")?;
     let stop_reason = match &plan {
         Some(_) => info.text("stop_reason")?.to_string(),
@@ -920,15 +929,14 @@ pub fn run_freefem_scene(
     }
     data.solver_attrs = attrs;
     data.scene_text = scene.text.clone();
-    data.root_attrs.extend([
-        ("model".into(), AttrValue::Str(scene.model.name().into())),
-        (
-            "element".into(),
-            AttrValue::Str(scene.element.name().into()),
-        ),
-        ("h".into(), AttrValue::F64(mesh.h_max())),
-        ("program".into(), AttrValue::Str("FreeFEM".into())),
-    ]);
+    data.root_attrs
+        .push(("program".into(), AttrValue::Str("FreeFEM".into())));
+    if scene.element == ElementPair::P2bPsri {
+        data.root_attrs.push((
+            "psri_weight".into(),
+            AttrValue::Str(info.text("psri_weight")?.into()),
+        ));
+    }
     write_result(out, &mesh, &data)?;
     Ok(FreefemRun {
         iterations: it,
@@ -980,114 +988,116 @@ fn read_len(path: &Path, n: usize) -> Result<Vec<f64>> {
     Ok(v)
 }
 
-/// The membrane's fields and dofs, named as `models::membrane` names them.
-fn membrane_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Result<ResultData> {
-    let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
-    let (nu, nl, (u_element, multipliers)) = match scene.element {
-        ElementPair::P1bP0 => (nv + nt, nt, (Element::P1Bubble, Element::P0)),
-        ElementPair::P2P1 => (nv + mesh.n_edges(), nv, (Element::P2, Element::P1)),
-        ElementPair::P2bPsri => {
-            return Err(scene_error(
-                scene,
-                "element",
-                format!("{} is a shell element", scene.element.name()),
-            ))
+/// FreeFEM's solution, read from the script's text files: the coefficient
+/// vectors named and laid out as the Rust result's `/dofs`, λ, and the
+/// obstacle Φ_h and mean gaps FreeFEM computed itself (checked against the
+/// Rust model's from the same coefficients).
+struct TwinSolution {
+    dofs: Vec<(String, Vec<f64>)>,
+    lambda: Vec<f64>,
+    /// (field name, FreeFEM's values, the file they came from).
+    contact: Vec<(&'static str, Vec<f64>, PathBuf)>,
+}
+
+impl TwinSolution {
+    fn read(
+        scene: &Scene,
+        mesh: &Mesh,
+        info: &Info,
+        file: &dyn Fn(&str) -> PathBuf,
+    ) -> Result<TwinSolution> {
+        let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
+        let ns = nv + nt;
+        let (dofs, n_lambda) = match (scene.model, scene.element) {
+            (Model::Membrane, ElementPair::P1bP0) => {
+                (vec![("u".into(), read_len(&file("u.txt"), ns)?)], nt)
+            }
+            (Model::Membrane, _) => {
+                let nu = nv + mesh.n_edges();
+                (vec![("u".into(), read_len(&file("u.txt"), nu)?)], nv)
+            }
+            (Model::Naghdi, ElementPair::P2bPsri) => {
+                check_psri_layout(scene, mesh, info, file)?;
+                let spaces = PsriSpaces::of(mesh);
+                let np = Space::new(mesh, spaces.u).n_dofs();
+                let nb = Space::new(mesh, spaces.theta).n_dofs();
+                let dofs = vec![
+                    ("u".into(), read_len(&file("u.txt"), 3 * np)?),
+                    ("theta".into(), read_len(&file("theta.txt"), 2 * nb)?),
+                ];
+                (dofs, nv)
+            }
+            (Model::Naghdi, _) => {
+                let mut full = read_len(&file("u.txt"), 6 * ns)?;
+                let r = full.split_off(3 * ns);
+                let dofs = vec![
+                    ("u".into(), full),
+                    ("r".into(), r),
+                    ("psi".into(), read_len(&file("psi.txt"), ns)?),
+                ];
+                (dofs, nt)
+            }
+        };
+        let mut twin = TwinSolution {
+            dofs,
+            lambda: Vec::new(),
+            contact: Vec::new(),
+        };
+        if scene.obstacle.is_some() {
+            twin.lambda = read_len(&file("lambda.txt"), n_lambda)?;
+            twin.contact = vec![
+                ("phi", read_len(&file("phi.txt"), nv)?, file("phi.txt")),
+                (
+                    "gap_mean",
+                    read_len(&file("gap.txt"), n_lambda)?,
+                    file("gap.txt"),
+                ),
+            ];
         }
-    };
-    let u = read_len(&file("u.txt"), nu)?;
-    let mut data = ResultData {
-        write_edges: scene.element == ElementPair::P2P1,
-        ..Default::default()
-    };
-    data.fields.push(vertex_field("u", u[..nv].to_vec()));
-    data.dofs.push(("u".into(), u));
-    data.dof_spaces.push(("u".into(), space_tag(u_element, 1)));
-    data.fields
-        .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
-    contact_fields(
-        &mut data,
-        read_len(&file("lambda.txt"), nl)?,
-        read_len(&file("gap.txt"), nl)?,
-        multipliers,
-    );
-    Ok(data)
-}
-
-/// The shell's fields and dofs, named as `models::naghdi::system` names them.
-fn naghdi_data(scene: &Scene, mesh: &Mesh, file: &dyn Fn(&str) -> PathBuf) -> Result<ResultData> {
-    let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
-    let ns = nv + nt;
-    let full = read_len(&file("u.txt"), 6 * ns)?;
-    let psi = read_len(&file("psi.txt"), ns)?;
-    let block = |c: usize| &full[c * ns..(c + 1) * ns];
-    let mut data = ResultData::default();
-    for (name, first) in [("u", 0), ("r", 3)] {
-        let values = (0..nv)
-            .flat_map(|v| (first..first + 3).map(move |c| (c, v)))
-            .map(|(c, v)| block(c)[v])
-            .collect();
-        data.fields.push(Field {
-            name: name.into(),
-            values,
-            components: 3,
-            location: Location::Vertex,
-        });
-        data.dofs
-            .push((name.into(), full[first * ns..(first + 3) * ns].to_vec()));
-        data.dof_spaces
-            .push((name.into(), space_tag(Element::P1Bubble, 3)));
+        Ok(twin)
     }
-    data.fields.push(vertex_field("psi", psi[..nv].to_vec()));
-    data.dofs.push(("psi".into(), psi));
-    data.dof_spaces
-        .push(("psi".into(), space_tag(Element::P1Bubble, 1)));
-    let half_eps = 0.5 * scene.shell.as_ref().map_or(0.0, |s| s.thickness);
-    let constraint: Vec<f64> = (0..nv)
-        .map(|v| block(2)[v] - half_eps * block(5)[v])
-        .collect();
-    shell_contact_fields(&mut data, scene, file, constraint, Element::P0, nv, nt)?;
-    Ok(data)
-}
 
-/// The shell's constraint field and, with an obstacle, Φ_h, λ (in
-/// `multipliers`: P0 per triangle or P1 per vertex, `n_lambda` values) and the
-/// mean gaps, as `NaghdiSystem::results` writes them.
-fn shell_contact_fields(
-    data: &mut ResultData,
-    scene: &Scene,
-    file: &dyn Fn(&str) -> PathBuf,
-    constraint: Vec<f64>,
-    multipliers: Element,
-    nv: usize,
-    n_lambda: usize,
-) -> Result<()> {
-    if scene.obstacle.is_none() {
-        data.fields.push(vertex_field("constraint", constraint));
-        return Ok(());
+    /// FreeFEM's Φ_h and mean gaps against the Rust model's (from the same
+    /// coefficients): they must agree to round-off, 1e-9 of the largest value.
+    fn check_contact_fields(&self, data: &ResultData) -> Result<()> {
+        for (name, freefem, path) in &self.contact {
+            let rust = data
+                .fields
+                .iter()
+                .find(|f| f.name == *name)
+                .map(|f| &f.values)
+                .ok_or_else(|| Error::output(path, format!("the Rust result has no `{name}`")))?;
+            let scale = freefem
+                .iter()
+                .chain(rust)
+                .fold(1.0f64, |m, v| m.max(v.abs()));
+            if let Some(i) = (0..rust.len()).find(|&i| {
+                let d = (freefem[i] - rust[i]).abs();
+                d.is_nan() || d > 1e-9 * scale
+            }) {
+                return Err(Error::output(
+                    path,
+                    format!(
+                        "{name}[{i}] = {:e}, the Rust model has {:e} from the same coefficients",
+                        freefem[i], rust[i]
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
-    data.fields
-        .push(vertex_field("phi", read_len(&file("phi.txt"), nv)?));
-    data.fields.push(vertex_field("constraint", constraint));
-    let lambda = read_len(&file("lambda.txt"), n_lambda)?;
-    let gap = read_len(&file("gap.txt"), n_lambda)?;
-    contact_fields(data, lambda, gap, multipliers);
-    Ok(())
 }
 
-/// The fields and dofs of the PSRI element, named and laid out as
-/// `NaghdiSystem::results` writes them: `u`, `r` = θ^β a_β and the
-/// constraint (u − ε/2 r)·e3 at the vertices, `/dofs/u` (P2^3), `/dofs/theta`
-/// (P2b^2), with contact `phi` and the P1 multiplier's fields and
-/// `/dofs/lambda` (P1). Checks the script's edge order against the mesh's
-/// and its PSRI weight α against [`psri_weight`].
-fn psri_data(
+/// The PSRI script's layout against the Rust one: the P2 edge order, the
+/// PSRI weight α of every triangle ([`psri_weight`]) and the spaces.
+fn check_psri_layout(
     scene: &Scene,
     mesh: &Mesh,
     info: &Info,
     file: &dyn Fn(&str) -> PathBuf,
-) -> Result<ResultData> {
+) -> Result<()> {
     let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
-    let (nv, ne, nt) = (mesh.n_vertices(), mesh.n_edges(), mesh.n_triangles());
+    let (ne, nt) = (mesh.n_edges(), mesh.n_triangles());
     let edges_path = file("edges.txt");
     let edges = read_len(&edges_path, 2 * ne)?;
     if let Some(e) =
@@ -1129,74 +1139,7 @@ fn psri_data(
             ));
         }
     }
-    let (np, nb) = (
-        Space::new(mesh, spaces.u).n_dofs(),
-        Space::new(mesh, spaces.theta).n_dofs(),
-    );
-    let u = read_len(&file("u.txt"), 3 * np)?;
-    let theta = read_len(&file("theta.txt"), 2 * nb)?;
-    let points: Vec<_> = mesh.vertices.iter().map(|&x| shell.chart.at(x)).collect();
-    let mut data = ResultData {
-        write_edges: true,
-        ..Default::default()
-    };
-    data.fields.push(Field {
-        name: "u".into(),
-        values: (0..nv)
-            .flat_map(|v| {
-                let u = &u;
-                (0..3).map(move |c| u[c * np + v])
-            })
-            .collect(),
-        components: 3,
-        location: Location::Vertex,
-    });
-    // r = θ^1 a_1 + θ^2 a_2, summed in Rust's order.
-    let r: Vec<f64> = points
-        .iter()
-        .enumerate()
-        .flat_map(|(v, p)| {
-            let mut r = nalgebra::Vector3::zeros();
-            for be in 0..2 {
-                r += p.a(be) * theta[be * nb + v];
-            }
-            [r.x, r.y, r.z]
-        })
-        .collect();
-    data.fields.push(Field {
-        name: "r".into(),
-        values: r,
-        components: 3,
-        location: Location::Vertex,
-    });
-    data.dofs.push(("u".into(), u.clone()));
-    data.dof_spaces.push(("u".into(), space_tag(spaces.u, 3)));
-    data.dofs.push(("theta".into(), theta.clone()));
-    data.dof_spaces
-        .push(("theta".into(), space_tag(spaces.theta, 2)));
-    let half_eps = 0.5 * shell.thickness;
-    let constraint: Vec<f64> = points
-        .iter()
-        .enumerate()
-        .map(|(v, p)| {
-            [
-                u[2 * np + v],
-                -half_eps * p.a1.z * theta[v],
-                -half_eps * p.a2.z * theta[nb + v],
-            ]
-            .iter()
-            .sum()
-        })
-        .collect();
-    shell_contact_fields(&mut data, scene, file, constraint, Element::P1, nv, nv)?;
-    data.root_attrs.extend([
-        ("chart".into(), AttrValue::Str(shell.chart.kind().into())),
-        (
-            "psri_weight".into(),
-            AttrValue::Str(info.text("psri_weight")?.into()),
-        ),
-    ]);
-    Ok(data)
+    Ok(())
 }
 
 /// `obstacle freefem`: runs the twin and prints one line.

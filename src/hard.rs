@@ -142,7 +142,7 @@ pub type Conditions = (f64, Option<std::result::Result<f64, String>>);
 pub fn scene_condition(scene: &Scene, msh: &Path) -> Result<Conditions> {
     let mesh = scene_mesh(scene, msh)?;
     let system = setup_model(scene, &mesh)?;
-    let problem: ContactProblem = system.assemble(scene)?;
+    let problem: ContactProblem = system.assemble()?;
     let what = problem.kind.describe();
     let f = factorize_checked(&problem.matrix, problem.kind, Solves::Many, what)?;
     let kappa = condition_estimate(&problem.matrix, &f);

@@ -5,10 +5,10 @@ use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::{Mesh, PointLocator};
-use crate::models::membrane::{ExactErrors, MembraneSystem};
+use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
-use crate::models::ModelSystem;
-use crate::output::{numeric_attr, write_result, AttrValue, Location, ResultData};
+use crate::models::{ExactErrors, FigureData, ModelSystem};
+use crate::output::{numeric_attr, write_result, AttrValue, ResultData};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
@@ -142,7 +142,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
-    let problem = system.assemble(scene)?;
+    let problem = system.assemble()?;
 
     // The solver the scene names; without an obstacle, one linear solve.
     let start_lambda = nested_start(scene, &mesh)?;
@@ -154,12 +154,16 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         show_progress,
     )?;
 
-    let mut data = system.results(scene, &problem, &report);
+    let mut data = system.results(&problem, &report);
+    data.scene_text = scene.text.clone();
     let errors = if scene.output.errors {
-        system.exact_errors(scene, &problem, &report)
+        system.exact_errors(&problem, &report)
     } else {
         None
     };
+    if let Some(e) = &errors {
+        data.root_attrs.extend(e.attrs());
+    }
     record_solver(&mut data, scene, &report, spectrum);
     write_result(out, &mesh, &data)?;
     if scene.mesh.file.is_none() {
@@ -170,7 +174,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         use std::os::unix::fs::PermissionsExt;
         let _ = std::fs::set_permissions(&msh, std::fs::Permissions::from_mode(0o644));
     }
-    write_plots(scene, out, &mesh, &data, &report, errors.as_ref())?;
+    write_plots(scene, out, system.as_ref(), &data, &report, errors.as_ref())?;
     Ok(RunSummary {
         scene: scene.name.clone(),
         model: scene.model.name().into(),
@@ -219,7 +223,7 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     coarse.mesh.n = Some(n / 2);
     let (_dir, coarse_mesh) = scene_mesh_in_temp(&coarse)?;
     let system = setup_model(&coarse, &coarse_mesh)?;
-    let problem = system.assemble(&coarse)?;
+    let problem = system.assemble()?;
     if problem.n_multipliers() != coarse_mesh.n_triangles() {
         return Ok(None); // not a P0 multiplier: no triangle-wise transfer
     }
@@ -340,131 +344,33 @@ fn solve(
     Ok((report, Some(alpha), spectrum))
 }
 
-/// The plots the scene asks for, beside the result file; nothing else is drawn.
+/// The plots the scene asks for, beside the result file; nothing else is
+/// drawn. The solver's history is drawn here, every other figure by the model.
 fn write_plots(
     scene: &Scene,
     out: &Path,
-    mesh: &Mesh,
+    system: &dyn ModelSystem,
     data: &ResultData,
     report: &SolveReport,
     errors: Option<&ExactErrors>,
 ) -> Result<()> {
     let ext = scene.output.plot_format.extension();
-    let field = |name: &str| data.fields.iter().find(|f| f.name == name);
-    for kind in &scene.output.plots {
+    let figure = FigureData { data, errors };
+    for &kind in &scene.output.plots {
         let name = format!("{kind:?}").to_lowercase();
         let path = out.with_extension(format!("{name}.{ext}"));
         let title = format!("{}: {name} ({})", scene.name, scene.element.name());
-        match kind {
-            PlotKind::History => {
-                if report.history.is_empty() {
-                    continue;
-                }
-                let mut columns = vec!["dual_step", "penetration", "complementarity", "kkt"];
-                if report.history.column("gap_origin").is_some() {
-                    columns.push("gap_origin");
-                }
-                plot::plot_history(&path, &report.history, &columns, &title)?
+        if kind != PlotKind::History {
+            system.plot(kind, &path, &title, &figure)?;
+        } else if !report.history.is_empty() {
+            let mut columns = vec!["dual_step", "penetration", "complementarity", "kkt"];
+            if report.history.column("gap_origin").is_some() {
+                columns.push("gap_origin");
             }
-            PlotKind::Contact => {
-                if let Some(f) = field("contact") {
-                    let active: Vec<bool> = f.values.iter().map(|&v| v > 0.0).collect();
-                    plot::plot_contact_zone(
-                        &path,
-                        mesh,
-                        &active,
-                        &title,
-                        errors.map(|e| e.exact_contact_radius),
-                    )?;
-                }
-            }
-            PlotKind::U1 | PlotKind::U2 | PlotKind::U3 => {
-                let c = match kind {
-                    PlotKind::U1 => 0,
-                    PlotKind::U2 => 1,
-                    _ => 2,
-                };
-                if let Some(f) = field("u") {
-                    let values: Vec<f64> = f.values.iter().skip(c).step_by(3).copied().collect();
-                    plot::plot_vertex_field(&path, mesh, &values, &title)?;
-                }
-            }
-            PlotKind::Constraint => {
-                if let (Some(w), Some(phi)) = (field("constraint"), field("phi")) {
-                    write_constraint_plots(&path, mesh, &w.values, &phi.values, &title)?;
-                }
-            }
-            PlotKind::U | PlotKind::Lambda | PlotKind::Gap => {
-                let name = match kind {
-                    PlotKind::U => "u",
-                    PlotKind::Lambda => "lambda",
-                    _ => "gap_mean",
-                };
-                if let Some(f) = field(name) {
-                    match f.location {
-                        Location::Vertex => {
-                            plot::plot_vertex_field(&path, mesh, &f.values, &title)?
-                        }
-                        Location::Cell => plot::plot_cell_field(&path, mesh, &f.values, &title)?,
-                    }
-                }
-            }
+            plot::plot_history(&path, &report.history, &columns, &title)?
         }
     }
     Ok(())
-}
-
-/// The shell's constraint w = (u − ε/2 r)·e3 against Φ_h (thesis Fig. 5.6):
-/// a colour map of w − Φ_h (zero on the contact zone) at `path`, and the
-/// profiles of w and Φ_h along the axes y = 0 and x = 0 (through the
-/// vertices that lie on them) at `<stem>-profiles.<ext>`.
-fn write_constraint_plots(
-    path: &Path,
-    mesh: &Mesh,
-    w: &[f64],
-    phi: &[f64],
-    title: &str,
-) -> Result<()> {
-    let gap: Vec<f64> = w.iter().zip(phi).map(|(a, b)| a - b).collect();
-    plot::plot_vertex_field(path, mesh, &gap, &format!("{title}: (u − ε/2 r)·e3 − Φ_h"))?;
-    let diameter = mesh.h_max().max(
-        mesh.vertices
-            .iter()
-            .fold(0.0f64, |m, v| m.max(v[0].abs()).max(v[1].abs())),
-    );
-    let mut series = Vec::new();
-    for (axis, along, across) in [("y = 0", 0, 1), ("x = 0", 1, 0)] {
-        let on_axis: Vec<usize> = (0..mesh.n_vertices())
-            .filter(|&v| mesh.vertices[v][across].abs() <= 1e-9 * diameter)
-            .collect();
-        if on_axis.len() < 3 {
-            continue;
-        }
-        let line = |f: &[f64]| -> Vec<(f64, f64)> {
-            on_axis
-                .iter()
-                .map(|&v| (mesh.vertices[v][along], f[v]))
-                .collect()
-        };
-        series.push((format!("(u − ε/2 r)·e3 on {axis}"), line(w)));
-        series.push((format!("Φ_h on {axis}"), line(phi)));
-    }
-    if series.is_empty() {
-        return Ok(());
-    }
-    let stem = path
-        .file_stem()
-        .and_then(|s| s.to_str())
-        .unwrap_or("constraint");
-    let ext = path.extension().and_then(|s| s.to_str()).unwrap_or("png");
-    let profiles = path.with_file_name(format!("{stem}-profiles.{ext}"));
-    plot::plot_lines(
-        &profiles,
-        &series,
-        "x or y",
-        "z",
-        &format!("{title}: profiles"),
-    )
 }
 
 /// The `/solver` attributes and history of docs/formulation.md §5.

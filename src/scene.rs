@@ -7,7 +7,6 @@
 //! overridden from the command line (`--set solver.alpha=0.9`).
 
 use crate::error::{Error, Result};
-use crate::models::naghdi::geometry::{Chart, Material};
 /// The solver vocabulary the scene's strings map onto (it belongs to solvers/).
 pub use crate::solvers::{DualNorm, StepForm, StopRule};
 use serde::Deserialize;
@@ -126,6 +125,88 @@ pub struct EdgeLoadSpec {
     pub moment: [f64; 3],
 }
 
+/// The midsurface chart φ: ω → R³, as declared in a scene (`kind = "..."`);
+/// its geometry (jets, normals, curvature) is `models::naghdi::geometry`.
+///
+/// Every variant is a graph over the (x, y) plane or an arc-length
+/// parametrisation, so each is regular (√a ≥ 1 for graphs, √a = 1 for the
+/// cylinder) and its first and second derivatives are exact closed forms.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Chart {
+    /// φ(x, y) = (x, y, (x² − y²)/r² + offset): the thesis hyperbolic
+    /// paraboloid ("second test", r = 50√2, offset = 1.4). Gaussian curvature
+    /// −4/r⁴ at the origin.
+    HyperbolicParaboloid { r: f64, offset: f64 },
+    /// φ(x, y) = (x, y, height): a flat plate at constant height.
+    Plate { height: f64 },
+    /// A circular cylinder of radius `radius` whose axis is the line
+    /// {x = 0, z = height} parallel to e2, parametrised by arc length:
+    ///
+    ///   φ(x, y) = (R sin(x/R), y, height + R cos(x/R)),  R = radius.
+    ///
+    /// x is the arc length along the circular cross-section measured from the
+    /// apex (0, y, height + R), y the coordinate along the axis; |a1| = |a2| = 1,
+    /// a_αβ = δ_αβ, √a = 1 everywhere. The normal a3 = (sin(x/R), 0, cos(x/R))
+    /// points away from the axis, so b_11 = −1/R, b_12 = b_22 = 0: mean
+    /// curvature H = −1/(2R), Gaussian curvature 0. The chart is injective for
+    /// |x| < πR; |x| < πR/2 is the upper half (a vault over the plane z = 0).
+    Cylinder { radius: f64, height: f64 },
+    /// A W^{2,∞} (C¹, not C²) chart: a flat plate for x ≤ 0 glued to a
+    /// parabolic cylinder for x > 0,
+    ///
+    ///   φ(x, y) = (x, y, offset + max(x, 0)²/r²).
+    ///
+    /// φ and a_α are continuous across x = 0; ∂_11 φ jumps from 0 to
+    /// (0, 0, 2/r²), so b_αβ and ∂_α a3 jump. Each side is evaluated exactly;
+    /// exactly at x = 0 the left (flat) one-sided second derivative is used.
+    CurvatureKink { r: f64, offset: f64 },
+}
+
+impl Chart {
+    /// The scene name of the variant (`kind = "..."`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Chart::HyperbolicParaboloid { .. } => "hyperbolic-paraboloid",
+            Chart::Plate { .. } => "plate",
+            Chart::Cylinder { .. } => "cylinder",
+            Chart::CurvatureKink { .. } => "curvature-kink",
+        }
+    }
+
+    /// Range checks of the parameters; the error names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let kind = self.kind();
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!(
+                    "chart {kind}: {name} must be finite and > 0, got {v}"
+                ))
+            }
+        };
+        let finite = |name: &str, v: f64| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!("chart {kind}: {name} must be finite, got {v}"))
+            }
+        };
+        match *self {
+            Chart::HyperbolicParaboloid { r, offset } | Chart::CurvatureKink { r, offset } => {
+                positive("r", r)?;
+                finite("offset", offset)
+            }
+            Chart::Plate { height } => finite("height", height),
+            Chart::Cylinder { radius, height } => {
+                positive("radius", radius)?;
+                finite("height", height)
+            }
+        }
+    }
+}
+
 /// The shell of model "naghdi": midsurface chart, material, the penalty ρ of
 /// a_ρ, and the clamped boundary parts γ0.
 #[derive(Debug, Clone, Deserialize)]
@@ -216,12 +297,30 @@ impl Axis {
 }
 
 impl ShellSpec {
-    pub fn material(&self) -> Material {
-        Material {
-            young: self.young,
-            poisson: self.poisson,
-            thickness: self.thickness,
+    /// Range checks of E, ν and ε: the field and the reason.
+    fn check_material(&self) -> std::result::Result<(), (&'static str, String)> {
+        if !(self.young.is_finite() && self.young > 0.0) {
+            let reason = format!(
+                "Young's modulus E must be finite and > 0, got {}",
+                self.young
+            );
+            return Err(("shell.young", reason));
         }
+        if !(self.poisson.is_finite() && (0.0..0.5).contains(&self.poisson)) {
+            let reason = format!(
+                "Poisson's ratio ν must lie in [0, 1/2), got {}",
+                self.poisson
+            );
+            return Err(("shell.poisson", reason));
+        }
+        if !(self.thickness.is_finite() && self.thickness > 0.0) {
+            let reason = format!(
+                "the thickness ε must be finite and > 0, got {}",
+                self.thickness
+            );
+            return Err(("shell.thickness", reason));
+        }
+        Ok(())
     }
 }
 
@@ -680,16 +779,9 @@ impl Scene {
             .chart
             .validate()
             .map_err(|reason| self.error("shell.chart", reason))?;
-        let material_field = |reason: &str| {
-            ["young", "poisson", "thickness"]
-                .into_iter()
-                .find(|f| reason.contains(f))
-                .map_or("shell".to_string(), |f| format!("shell.{f}"))
-        };
         shell
-            .material()
-            .validate()
-            .map_err(|reason| self.error(&material_field(&reason), reason))?;
+            .check_material()
+            .map_err(|(field, reason)| self.error(field, reason))?;
         match (self.element, shell.rho) {
             (ElementPair::P1bP0, None) => {
                 return Err(self.error(

@@ -20,7 +20,7 @@
 //! (errors of root attributes against given values, plotted against time).
 
 use crate::error::{Error, Result};
-use crate::models::membrane::ExactErrors;
+use crate::models::ExactErrors;
 use crate::output::read_result;
 use crate::pipeline::{run_scene, RunSummary};
 use crate::plot;

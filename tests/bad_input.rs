@@ -354,6 +354,10 @@ fn invalid_meshes_are_rejected() {
             "output.plots=[]",
             "--set",
             "output.errors=false",
+            // The unit square's corner (0, 0) is on the boundary (u = 0):
+            // the disk's obstacle (0.3 there) would be infeasible.
+            "--set",
+            "obstacle.height=-0.5",
             "--out",
             o_str,
         ]);

@@ -41,7 +41,7 @@ fn membrane(element: &str, n: usize) -> ContactProblem {
     let dir = tempfile::tempdir().unwrap();
     let mesh = scene_mesh(&scene, &dir.path().join("disk.msh")).unwrap();
     let system = MembraneSystem::setup(&mesh, &scene).unwrap();
-    system.assemble(&scene).unwrap()
+    system.assemble().unwrap()
 }
 
 /// The thesis hypar (docs/formulation.md §2) on the n×n diamond, ρ = 1e3, with the rigid

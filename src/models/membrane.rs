@@ -6,17 +6,20 @@
 //! from `solvers` → [`MembraneSystem::results`] (fields, errors).
 
 use super::exact::RadialObstacle;
-use super::{contact_fields, named_boundary_tags, vertex_field, ModelSystem};
+use super::{
+    check_obstacle_below_fixed_boundary, contact_fields, named_boundary_tags, named_dofs,
+    vertex_field, ExactErrors, ModelSystem,
+};
 use crate::assembly::{
     assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
     mass, DofNumbering,
 };
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
 use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
-use crate::scene::{ElementPair, Scene};
+use crate::scene::{ElementPair, ObstacleSpec, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
 use crate::space::{Element, Space};
 
@@ -26,19 +29,12 @@ pub struct MembraneSystem<'m> {
     pub u_space: Space<'m>,
     pub lambda_space: Space<'m>,
     pub numbering: DofNumbering,
+    /// The source term g of −Δu = g (`load.g`, default 0).
+    pub load: f64,
+    /// The obstacle u ≥ φ, when the scene has one.
+    pub obstacle: Option<ObstacleSpec>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
-}
-
-/// Errors of u_h against the exact solution, and the discrete contact radius.
-#[derive(Debug, Clone, Copy)]
-pub struct ExactErrors {
-    pub l2: f64,
-    pub h1: f64,
-    pub lambda_l2: f64,
-    /// √(contact area / π) with the contact set {λ_i > 0} weighted by the Riesz weights.
-    pub contact_radius: f64,
-    pub exact_contact_radius: f64,
 }
 
 impl<'m> MembraneSystem<'m> {
@@ -57,7 +53,31 @@ impl<'m> MembraneSystem<'m> {
             scene.mesh.dirichlet.as_deref(),
         )?;
         let fixed = u_space.boundary_dof_mask(tags.as_deref());
+        if !fixed.iter().any(|&f| f) {
+            return Err(Error::Scene {
+                file: scene.source.clone(),
+                field: "mesh.dirichlet".into(),
+                reason: format!(
+                    "no dof is fixed (the mesh {} has no boundary line there): with natural boundary conditions alone −Δu = g determines u only up to a constant, and the problem is singular",
+                    mesh.source.display()
+                ),
+            });
+        }
         let numbering = DofNumbering::from_fixed_mask(&fixed);
+        if let Some(obstacle) = &scene.obstacle {
+            // u = 0 on the Dirichlet parts: the obstacle must lie below 0 there.
+            let phi = Space::new(mesh, Element::P1).interpolate(|x| obstacle.value(x));
+            check_obstacle_below_fixed_boundary(
+                mesh,
+                scene,
+                &phi,
+                tags.as_deref(),
+                "Dirichlet boundary (u = 0)",
+            )?;
+        }
+        if scene.output.errors {
+            check_exact_solution_applies(mesh, scene, tags.is_none())?;
+        }
         let mut simulated = vec!["load".to_string(), "dirichlet".to_string()];
         if scene.obstacle.is_some() {
             simulated.push("obstacle".into());
@@ -68,6 +88,8 @@ impl<'m> MembraneSystem<'m> {
             u_space,
             lambda_space: Space::new(mesh, lambda_element),
             numbering,
+            load: scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0),
+            obstacle: scene.obstacle.clone(),
             simulated,
         })
     }
@@ -79,14 +101,59 @@ impl<'m> MembraneSystem<'m> {
     }
 }
 
+/// `output.errors` measures against the exact radial solution: it applies
+/// only to the unit disk (every boundary vertex at |x| = 1), u = 0 on all of
+/// the boundary, a paraboloid obstacle and data for which the radial solution
+/// exists. Anything else is refused, naming what differs.
+fn check_exact_solution_applies(
+    mesh: &Mesh,
+    scene: &Scene,
+    dirichlet_everywhere: bool,
+) -> Result<()> {
+    let refuse = |reason: String| {
+        Err(Error::Scene {
+            file: scene.source.clone(),
+            field: "output.errors".into(),
+            reason: format!("errors are measured against the exact solution on the unit disk (docs/formulation.md §1), but {reason}"),
+        })
+    };
+    if !dirichlet_everywhere {
+        return refuse("mesh.dirichlet names only some boundary parts".into());
+    }
+    let boundary = mesh.boundary_vertex_mask(None);
+    let off_circle = (0..mesh.n_vertices())
+        .filter(|&v| boundary[v])
+        .map(|v| (v, mesh.vertices[v][0].hypot(mesh.vertices[v][1])))
+        .find(|(_, r)| (r - 1.0).abs() > 1e-9);
+    if let Some((v, r)) = off_circle {
+        let [x, y] = mesh.vertices[v];
+        return refuse(format!(
+            "the mesh {} is not the unit disk: its boundary vertex ({x:.6}, {y:.6}) lies at radius {r:.6}",
+            mesh.source.display()
+        ));
+    }
+    let Some(obstacle) = &scene.obstacle else {
+        return refuse("the scene has no obstacle".into());
+    };
+    let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
+    let curvature = obstacle.curvature.unwrap_or(0.0);
+    if RadialObstacle::new(g, obstacle.level(), curvature).is_none() {
+        return refuse(format!(
+            "no radial solution exists for load.g = {g}, obstacle height {} and curvature {curvature} (it needs 4·curvature ≥ g)",
+            obstacle.level()
+        ));
+    }
+    Ok(())
+}
+
 impl ModelSystem for MembraneSystem<'_> {
     /// The algebraic problem: stiffness K, load F, and (only when the scene has
     /// an obstacle) the constraint C u ≥ g with its Riesz weights.
-    fn assemble(&self, scene: &Scene) -> Result<ContactProblem> {
+    fn assemble(&self) -> Result<ContactProblem> {
         // Degree 5 (Radon, 7 points) is exact for every integrand below:
         // ∇(P1⊕B3)·∇(P1⊕B3) has degree 4, P2·P1 and φ·P1 degree 3.
         let rule = TriangleRule::exact_for(5);
-        let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
+        let g = self.load;
         let u = &self.u_space;
         let k_full = assemble_bilinear(u, u, &rule, laplace);
         let fixed_values = vec![0.0; u.n_dofs()];
@@ -99,7 +166,7 @@ impl ModelSystem for MembraneSystem<'_> {
             .zip(&shift)
             .map(|(a, b)| a + b)
             .collect();
-        let constraint = match &scene.obstacle {
+        let constraint = match &self.obstacle {
             None => None,
             Some(obstacle) => {
                 let lam = &self.lambda_space;
@@ -150,19 +217,13 @@ impl ModelSystem for MembraneSystem<'_> {
     }
 
     /// Errors against the exact radial solution, when the scene is that case.
-    fn exact_errors(
-        &self,
-        scene: &Scene,
-        problem: &ContactProblem,
-        report: &SolveReport,
-    ) -> Option<ExactErrors> {
-        let (load, obstacle, constraint) = (
-            scene.load.as_ref()?,
-            scene.obstacle.as_ref()?,
-            problem.constraint.as_ref()?,
-        );
-        let exact =
-            RadialObstacle::new(load.g?, obstacle.level(), obstacle.curvature.unwrap_or(0.0))?;
+    fn exact_errors(&self, problem: &ContactProblem, report: &SolveReport) -> Option<ExactErrors> {
+        let (obstacle, constraint) = (self.obstacle.as_ref()?, problem.constraint.as_ref()?);
+        let exact = RadialObstacle::new(
+            self.load,
+            obstacle.level(),
+            obstacle.curvature.unwrap_or(0.0),
+        )?;
         let u = self.u_coefficients(report);
         // The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
         // a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
@@ -194,10 +255,9 @@ impl ModelSystem for MembraneSystem<'_> {
     }
 
     /// Fields and coefficient vectors for the result file (docs/formulation.md §5).
-    fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData {
+    fn results(&self, problem: &ContactProblem, report: &SolveReport) -> ResultData {
         let u = self.u_coefficients(report);
         let mut data = ResultData {
-            scene_text: scene.text.clone(),
             write_edges: self.u_space.element == Element::P2,
             ..Default::default()
         };
@@ -208,7 +268,7 @@ impl ModelSystem for MembraneSystem<'_> {
             "u".into(),
             crate::output::space_tag(self.u_space.element, 1),
         ));
-        if let (Some(obstacle), Some(c)) = (&scene.obstacle, &problem.constraint) {
+        if let (Some(obstacle), Some(c)) = (&self.obstacle, &problem.constraint) {
             let phi = Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
             data.fields.push(vertex_field("phi", phi));
             contact_fields(
@@ -234,20 +294,16 @@ impl ModelSystem for MembraneSystem<'_> {
         ));
         data.root_attrs
             .push(("h".into(), AttrValue::F64(self.mesh.h_max())));
-        if scene.output.errors {
-            if let Some(e) = self.exact_errors(scene, problem, report) {
-                for (name, v) in [
-                    ("error_l2_u", e.l2),
-                    ("error_h1_u", e.h1),
-                    ("error_l2_lambda", e.lambda_l2),
-                    ("contact_radius", e.contact_radius),
-                    ("exact_contact_radius", e.exact_contact_radius),
-                ] {
-                    data.root_attrs.push((name.into(), AttrValue::F64(v)));
-                }
-            }
-        }
         data
+    }
+
+    fn primal_from_dofs(&self, dofs: &[(String, Vec<f64>)]) -> Result<Vec<f64>> {
+        let u = named_dofs(dofs, "u", self.u_space.n_dofs())?;
+        Ok(self.numbering.restrict(u))
+    }
+
+    fn mesh(&self) -> &Mesh {
+        self.mesh
     }
 
     fn n_dofs(&self) -> usize {

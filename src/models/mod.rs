@@ -9,34 +9,153 @@ pub mod naghdi;
 
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
-use crate::output::{Field, Location, ResultData};
-use crate::scene::Scene;
+use crate::output::{AttrValue, Field, Location, ResultData};
+use crate::plot;
+use crate::scene::{PlotKind, Scene};
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::Element;
-use membrane::ExactErrors;
+use std::path::Path;
 
 /// A model set up on a mesh for a scene: the steps of a run after meshing.
+/// `setup` (each model's constructor) reads the scene once and resolves
+/// everything the later steps need, so none of them sees the scene.
 pub trait ModelSystem {
     /// The algebraic problem; the constraint only when the scene has an obstacle.
-    fn assemble(&self, scene: &Scene) -> Result<ContactProblem>;
+    fn assemble(&self) -> Result<ContactProblem>;
     /// Model quantities recorded in the solver history every iteration.
     fn probes(&self) -> Vec<Probe> {
         Vec::new()
     }
     /// Fields, coefficient vectors and model attributes for the result file.
-    fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData;
+    fn results(&self, problem: &ContactProblem, report: &SolveReport) -> ResultData;
+    /// The inverse of `results`' `/dofs`: the primal unknowns x of the
+    /// algebraic problem from coefficient vectors named and laid out as the
+    /// result file stores them (values at fixed dofs are dropped). How a
+    /// solution computed elsewhere (the FreeFEM twin) becomes a result.
+    fn primal_from_dofs(&self, dofs: &[(String, Vec<f64>)]) -> Result<Vec<f64>>;
     /// Errors against an exact solution, when the scene has one and asks for it.
     fn exact_errors(
         &self,
-        _scene: &Scene,
         _problem: &ContactProblem,
         _report: &SolveReport,
     ) -> Option<ExactErrors> {
         None
     }
+    /// Draws one figure the scene asks for (all but the solver history) from
+    /// the result's fields; a model adds or refines the figures it knows.
+    fn plot(&self, kind: PlotKind, path: &Path, title: &str, figure: &FigureData) -> Result<()> {
+        plot_result_field(self.mesh(), kind, path, title, figure)
+    }
+    /// The mesh the model is set up on.
+    fn mesh(&self) -> &Mesh;
     /// Number of discrete unknowns as the thesis counts them (boundary dofs included).
     fn n_dofs(&self) -> usize;
+}
+
+/// What a figure of a result is drawn from: the result's fields and, when
+/// known, the errors against the exact solution.
+pub struct FigureData<'a> {
+    pub data: &'a ResultData,
+    pub errors: Option<&'a ExactErrors>,
+}
+
+impl FigureData<'_> {
+    pub fn field(&self, name: &str) -> Option<&Field> {
+        self.data.fields.iter().find(|f| f.name == name)
+    }
+}
+
+/// Errors of u_h (and λ_h) against an exact solution, and the discrete
+/// contact radius against the exact one (docs/formulation.md §1).
+#[derive(Debug, Clone, Copy)]
+pub struct ExactErrors {
+    pub l2: f64,
+    pub h1: f64,
+    pub lambda_l2: f64,
+    /// √(contact area / π) with the contact set {λ_i > 0} weighted by the Riesz weights.
+    pub contact_radius: f64,
+    pub exact_contact_radius: f64,
+}
+
+impl ExactErrors {
+    /// The root attributes of a result file that record these errors.
+    pub fn attrs(&self) -> Vec<(String, AttrValue)> {
+        [
+            ("error_l2_u", self.l2),
+            ("error_h1_u", self.h1),
+            ("error_l2_lambda", self.lambda_l2),
+            ("contact_radius", self.contact_radius),
+            ("exact_contact_radius", self.exact_contact_radius),
+        ]
+        .into_iter()
+        .map(|(name, v)| (name.to_string(), AttrValue::F64(v)))
+        .collect()
+    }
+}
+
+/// The figures every model draws the same way: a field at the vertices or
+/// per triangle (u, its components, λ, the mean gap) and the contact zone
+/// (with the exact contact circle when known). Kinds without the field they
+/// need (e.g. λ without an obstacle) draw nothing.
+pub fn plot_result_field(
+    mesh: &Mesh,
+    kind: PlotKind,
+    path: &Path,
+    title: &str,
+    figure: &FigureData,
+) -> Result<()> {
+    match kind {
+        PlotKind::Contact => {
+            if let Some(f) = figure.field("contact") {
+                let active: Vec<bool> = f.values.iter().map(|&v| v > 0.0).collect();
+                let circle = figure.errors.map(|e| e.exact_contact_radius);
+                plot::plot_contact_zone(path, mesh, &active, title, circle)?;
+            }
+        }
+        PlotKind::U1 | PlotKind::U2 | PlotKind::U3 => {
+            let c = match kind {
+                PlotKind::U1 => 0,
+                PlotKind::U2 => 1,
+                _ => 2,
+            };
+            if let Some(f) = figure.field("u") {
+                let values: Vec<f64> = f.values.iter().skip(c).step_by(3).copied().collect();
+                plot::plot_vertex_field(path, mesh, &values, title)?;
+            }
+        }
+        PlotKind::U | PlotKind::Lambda | PlotKind::Gap => {
+            let name = match kind {
+                PlotKind::U => "u",
+                PlotKind::Lambda => "lambda",
+                _ => "gap_mean",
+            };
+            if let Some(f) = figure.field(name) {
+                match f.location {
+                    Location::Vertex => plot::plot_vertex_field(path, mesh, &f.values, title)?,
+                    Location::Cell => plot::plot_cell_field(path, mesh, &f.values, title)?,
+                }
+            }
+        }
+        // The solver's history is drawn by the pipeline; the constraint by
+        // the shell model.
+        PlotKind::History | PlotKind::Constraint => {}
+    }
+    Ok(())
+}
+
+/// The vector named `name` among `dofs`, checked to have `len` entries.
+pub fn named_dofs<'a>(dofs: &'a [(String, Vec<f64>)], name: &str, len: usize) -> Result<&'a [f64]> {
+    let (_, v) = dofs.iter().find(|(n, _)| n == name).ok_or_else(|| {
+        Error::output("(coefficient vectors)", format!("no vector named `{name}`"))
+    })?;
+    if v.len() != len {
+        return Err(Error::output(
+            "(coefficient vectors)",
+            format!("`{name}` has {} values, the model has {len}", v.len()),
+        ));
+    }
+    Ok(v)
 }
 
 /// The physical tags of the boundary parts `names` (scene field `field`);
@@ -50,25 +169,71 @@ pub fn named_boundary_tags(
     let Some(names) = names else {
         return Ok(None);
     };
+    let error = |reason: String| Error::Scene {
+        file: scene.source.clone(),
+        field: field.into(),
+        reason,
+    };
+    // The parts a boundary condition can name: physical lines of the boundary.
+    let boundary_parts = || {
+        let tags: std::collections::BTreeSet<i32> =
+            mesh.boundary_edges.iter().map(|e| e.tag).collect();
+        let names: Vec<String> = tags
+            .iter()
+            .filter_map(|t| mesh.physical_names.get(t).cloned())
+            .collect();
+        names.join(", ")
+    };
     names
         .iter()
         .map(|name| {
-            mesh.tag_by_name(name).ok_or_else(|| Error::Scene {
-                file: scene.source.clone(),
-                field: field.into(),
-                reason: format!(
-                    "the mesh {} has no boundary part named `{name}` (it has: {})",
+            let tag = mesh.tag_by_name(name).ok_or_else(|| {
+                error(format!(
+                    "the mesh {} has no boundary part named `{name}` (its boundary parts: {})",
                     mesh.source.display(),
-                    mesh.physical_names
-                        .values()
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })
+                    boundary_parts()
+                ))
+            })?;
+            if !mesh.boundary_edges.iter().any(|e| e.tag == tag) {
+                return Err(error(format!(
+                    "`{name}` of the mesh {} is not a part of the boundary (no boundary line carries its tag {tag}; its boundary parts: {})",
+                    mesh.source.display(),
+                    boundary_parts()
+                )));
+            }
+            Ok(tag)
         })
         .collect::<Result<Vec<_>>>()
         .map(Some)
+}
+
+/// Where the boundary parts `tags` (all of the boundary if None) hold the
+/// solution at 0, the obstacle must not lie above 0: the largest Φ_h > 0 at
+/// one of their vertices makes the problem infeasible (no admissible u
+/// exists). Detected before assembling; the error names `where_fixed`.
+pub fn check_obstacle_below_fixed_boundary(
+    mesh: &Mesh,
+    scene: &Scene,
+    phi: &[f64],
+    tags: Option<&[i32]>,
+    where_fixed: &str,
+) -> Result<()> {
+    let mask = mesh.boundary_vertex_mask(tags);
+    let scale = phi.iter().fold(0.0f64, |m, p| m.max(p.abs())).max(1.0);
+    let worst = (0..mesh.n_vertices())
+        .filter(|&v| mask[v])
+        .max_by(|&a, &b| phi[a].total_cmp(&phi[b]));
+    match worst {
+        Some(v) if phi[v] > 1e-12 * scale => Err(Error::Scene {
+            file: scene.source.clone(),
+            field: "obstacle".into(),
+            reason: format!(
+                "infeasible: the {where_fixed} at ({:.6}, {:.6}) lies {:.6e} below the obstacle (Φ_h > 0 there), so no admissible displacement exists (the obstacle must lie below the boundary values)",
+                mesh.vertices[v][0], mesh.vertices[v][1], phi[v]
+            ),
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// A scalar field at the vertices.

@@ -44,7 +44,7 @@ impl Constraint {
 
     /// All mean gaps of x.
     pub fn mean_gaps(&self, x: &[f64]) -> Vec<f64> {
-        let cx = crate::assembly::mat_vec(&self.matrix, x);
+        let cx = crate::linalg::mat_vec(&self.matrix, x);
         (0..cx.len()).map(|i| self.mean_gap(&cx, i)).collect()
     }
 }
@@ -73,7 +73,7 @@ impl ContactProblem {
 }
 
 /// What a solver returns: the last iterate and how it got there.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct SolveReport {
     pub algorithm: String,
     pub x: Vec<f64>,

@@ -20,45 +20,12 @@
 use nalgebra::{Matrix2, Vector3};
 use serde::Deserialize;
 
+/// The chart is declared by the scene (its variants and their range checks
+/// are scene data); its geometry is implemented here.
+pub use crate::scene::Chart;
+
 /// A chart is singular at a point where |a1×a2| falls below this.
 pub const SINGULAR_TOL: f64 = 1e-12;
-
-/// The midsurface chart φ: ω → R³, as declared in a scene (`kind = "..."`).
-///
-/// Every variant is a graph over the (x, y) plane or an arc-length
-/// parametrisation, so each is regular (√a ≥ 1 for graphs, √a = 1 for the
-/// cylinder) and its first and second derivatives are exact closed forms.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
-pub enum Chart {
-    /// φ(x, y) = (x, y, (x² − y²)/r² + offset): the thesis hyperbolic
-    /// paraboloid ("second test", r = 50√2, offset = 1.4). Gaussian curvature
-    /// −4/r⁴ at the origin.
-    HyperbolicParaboloid { r: f64, offset: f64 },
-    /// φ(x, y) = (x, y, height): a flat plate at constant height.
-    Plate { height: f64 },
-    /// A circular cylinder of radius `radius` whose axis is the line
-    /// {x = 0, z = height} parallel to e2, parametrised by arc length:
-    ///
-    ///   φ(x, y) = (R sin(x/R), y, height + R cos(x/R)),  R = radius.
-    ///
-    /// x is the arc length along the circular cross-section measured from the
-    /// apex (0, y, height + R), y the coordinate along the axis; |a1| = |a2| = 1,
-    /// a_αβ = δ_αβ, √a = 1 everywhere. The normal a3 = (sin(x/R), 0, cos(x/R))
-    /// points away from the axis, so b_11 = −1/R, b_12 = b_22 = 0: mean
-    /// curvature H = −1/(2R), Gaussian curvature 0. The chart is injective for
-    /// |x| < πR; |x| < πR/2 is the upper half (a vault over the plane z = 0).
-    Cylinder { radius: f64, height: f64 },
-    /// A W^{2,∞} (C¹, not C²) chart: a flat plate for x ≤ 0 glued to a
-    /// parabolic cylinder for x > 0,
-    ///
-    ///   φ(x, y) = (x, y, offset + max(x, 0)²/r²).
-    ///
-    /// φ and a_α are continuous across x = 0; ∂_11 φ jumps from 0 to
-    /// (0, 0, 2/r²), so b_αβ and ∂_α a3 jump. Each side is evaluated exactly;
-    /// exactly at x = 0 the left (flat) one-sided second derivative is used.
-    CurvatureKink { r: f64, offset: f64 },
-}
 
 /// φ with its exact first and second derivatives at one point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -158,48 +125,6 @@ impl Chart {
     /// The full local geometry at x (see [`SurfacePoint`]).
     pub fn at(&self, x: [f64; 2]) -> SurfacePoint {
         SurfacePoint::from_jet(x, &self.jet(x))
-    }
-
-    /// The scene name of the variant (`kind = "..."`).
-    pub fn kind(&self) -> &'static str {
-        match self {
-            Chart::HyperbolicParaboloid { .. } => "hyperbolic-paraboloid",
-            Chart::Plate { .. } => "plate",
-            Chart::Cylinder { .. } => "cylinder",
-            Chart::CurvatureKink { .. } => "curvature-kink",
-        }
-    }
-
-    /// Range checks of the parameters; the error names the field.
-    pub fn validate(&self) -> Result<(), String> {
-        let kind = self.kind();
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!(
-                    "chart {kind}: {name} must be finite and > 0, got {v}"
-                ))
-            }
-        };
-        let finite = |name: &str, v: f64| {
-            if v.is_finite() {
-                Ok(())
-            } else {
-                Err(format!("chart {kind}: {name} must be finite, got {v}"))
-            }
-        };
-        match *self {
-            Chart::HyperbolicParaboloid { r, offset } | Chart::CurvatureKink { r, offset } => {
-                positive("r", r)?;
-                finite("offset", offset)
-            }
-            Chart::Plate { height } => finite("height", height),
-            Chart::Cylinder { radius, height } => {
-                positive("radius", radius)?;
-                finite("height", height)
-            }
-        }
     }
 
     /// The first point where the chart is singular, |a1×a2| < [`SINGULAR_TOL`]
@@ -304,29 +229,13 @@ pub struct Material {
 }
 
 impl Material {
-    /// Range checks; the error names the field.
-    pub fn validate(&self) -> Result<(), String> {
-        let Material {
-            young,
-            poisson,
-            thickness,
-        } = *self;
-        if !(young.is_finite() && young > 0.0) {
-            return Err(format!(
-                "material: young (Young's modulus E) must be finite and > 0, got {young}"
-            ));
+    /// The material of a scene's shell (ranges checked when the scene was read).
+    pub fn of(shell: &crate::scene::ShellSpec) -> Material {
+        Material {
+            young: shell.young,
+            poisson: shell.poisson,
+            thickness: shell.thickness,
         }
-        if !(poisson.is_finite() && (0.0..0.5).contains(&poisson)) {
-            return Err(format!(
-                "material: poisson (Poisson's ratio ν) must lie in [0, 1/2), got {poisson}"
-            ));
-        }
-        if !(thickness.is_finite() && thickness > 0.0) {
-            return Err(format!(
-                "material: thickness (ε) must be finite and > 0, got {thickness}"
-            ));
-        }
-        Ok(())
     }
 
     /// Shear modulus μ = E/(2(1+ν)).
@@ -763,7 +672,6 @@ mod tests {
             poisson: 0.4,
             thickness: 0.8,
         };
-        mat.validate().unwrap();
         let (e, nu) = (mat.young, mat.poisson);
         // Plate: a^αβ = δ, plane-stress values.
         let c = mat.elasticity(&Matrix2::identity());
@@ -790,93 +698,6 @@ mod tests {
                             assert!(approx(v, c[rh][si][al][be], 1e-12 * e), "αβρσ = ρσαβ");
                         }
                     }
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn material_validate_messages() {
-        let good = Material {
-            young: 2.85e4,
-            poisson: 0.4,
-            thickness: 0.8,
-        };
-        assert_eq!(good.validate(), Ok(()));
-        assert_eq!(
-            Material {
-                poisson: 0.0,
-                ..good
-            }
-            .validate(),
-            Ok(())
-        );
-        let cases = [
-            (
-                Material {
-                    poisson: 0.5,
-                    ..good
-                },
-                "poisson",
-            ),
-            (
-                Material {
-                    poisson: -0.1,
-                    ..good
-                },
-                "poisson",
-            ),
-            (
-                Material {
-                    poisson: f64::NAN,
-                    ..good
-                },
-                "poisson",
-            ),
-            (Material { young: 0.0, ..good }, "young"),
-            (
-                Material {
-                    young: -1.0,
-                    ..good
-                },
-                "young",
-            ),
-            (
-                Material {
-                    young: f64::NAN,
-                    ..good
-                },
-                "young",
-            ),
-            (
-                Material {
-                    young: f64::INFINITY,
-                    ..good
-                },
-                "young",
-            ),
-            (
-                Material {
-                    thickness: -1.0,
-                    ..good
-                },
-                "thickness",
-            ),
-            (
-                Material {
-                    thickness: f64::NAN,
-                    ..good
-                },
-                "thickness",
-            ),
-        ];
-        for (mat, field) in cases {
-            let err = mat.validate().unwrap_err();
-            println!("{err}");
-            assert!(err.contains(field), "{err}");
-            for other in ["young", "poisson", "thickness"] {
-                if other != field {
-                    assert!(!err.contains(other), "{err} names {other}");
                 }
             }
         }

@@ -21,15 +21,20 @@ use super::geometry::{obstacle_function, Chart, Material};
 use crate::assembly::{quad_points, DofNumbering};
 use crate::error::{Error, Result};
 use crate::mesh::{Mesh, PointLocator};
-use crate::models::{contact_fields, named_boundary_tags, vertex_field, ModelSystem};
+use crate::models::{
+    check_obstacle_below_fixed_boundary, contact_fields, named_boundary_tags, named_dofs,
+    plot_result_field, vertex_field, FigureData, ModelSystem,
+};
 use crate::output::{AttrValue, Field, Location, ResultData};
+use crate::plot;
 use crate::quadrature::TriangleRule;
-use crate::scene::{BoundaryCondition, BoundarySpec, ElementPair, Scene, ShellSpec};
+use crate::scene::{BoundaryCondition, BoundarySpec, ElementPair, PlotKind, Scene, ShellSpec};
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
 use nalgebra::Vector3;
 use std::cell::Cell;
+use std::path::Path;
 
 pub struct NaghdiSystem<'m> {
     pub mesh: &'m Mesh,
@@ -56,6 +61,10 @@ pub struct NaghdiSystem<'m> {
     tangency_scale: Cell<f64>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
+    /// The scene's element (recorded in the result file).
+    element: ElementPair,
+    /// The point where u is recorded (`output.probe`).
+    probe: Option<[f64; 2]>,
 }
 
 /// The boundary conditions of a scene, resolved to tags: `shell.clamped`
@@ -242,7 +251,7 @@ impl<'m> NaghdiSystem<'m> {
         let shell: &ShellSpec = scene.shell.as_ref().expect("validated: naghdi has [shell]");
         let chart = shell.chart;
         check_chart_regular(mesh, scene, &chart)?;
-        let material = shell.material();
+        let material = Material::of(shell);
         let kind = match scene.element {
             ElementPair::P2bPsri => ShellElementKind::P2bPsri,
             _ => ShellElementKind::P1bP0,
@@ -259,6 +268,7 @@ impl<'m> NaghdiSystem<'m> {
             }
         }
         let mut fixed = fixed_mask(mesh, scene, &layout, &chart, &conditions)?;
+        check_translations_fixed(scene, &layout, &fixed)?;
         let plate_reduction =
             kind == ShellElementKind::P1bP0 && matches!(chart, Chart::Plate { .. });
         if plate_reduction {
@@ -320,7 +330,14 @@ impl<'m> NaghdiSystem<'m> {
                     .map(|p| p + level)
                     .collect();
                 for tags in &clamped_tags {
-                    check_feasible(mesh, scene, &phi, tags.as_deref())?;
+                    // A clamped point has u = r = 0: its constraint value is 0.
+                    check_obstacle_below_fixed_boundary(
+                        mesh,
+                        scene,
+                        &phi,
+                        tags.as_deref(),
+                        "clamped boundary",
+                    )?;
                 }
                 let positive = phi.iter().filter(|p| **p > 0.0).count();
                 (Some(level), Some(phi), positive)
@@ -344,6 +361,8 @@ impl<'m> NaghdiSystem<'m> {
             phi_positive_vertices,
             tangency_scale: Cell::new(1.0),
             simulated,
+            element: scene.element,
+            probe: scene.output.probe,
         })
     }
 
@@ -358,6 +377,17 @@ impl<'m> NaghdiSystem<'m> {
                 .for_each(|v| *v *= sigma);
         }
         full
+    }
+
+    /// The `/dofs` vectors of a result: u and the rotation unknowns (r or θ)
+    /// as component blocks in a row, ψ; each names the layout's fields it holds.
+    fn dof_groups(&self) -> Vec<(&'static str, Vec<usize>)> {
+        match self.layout.kind {
+            ShellElementKind::P1bP0 => {
+                vec![("u", vec![0, 1, 2]), ("r", vec![3, 4, 5]), ("psi", vec![6])]
+            }
+            ShellElementKind::P2bPsri => vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])],
+        }
     }
 
     /// The weights of the fields in (u − ε/2 r)·e3 at a point of the chart.
@@ -407,7 +437,7 @@ impl<'m> NaghdiSystem<'m> {
 }
 
 impl ModelSystem for NaghdiSystem<'_> {
-    fn assemble(&self, _scene: &Scene) -> Result<ContactProblem> {
+    fn assemble(&self) -> Result<ContactProblem> {
         let (a_full, mut f_full) = assemble_shell_layout(
             self.mesh,
             &self.layout,
@@ -489,12 +519,11 @@ impl ModelSystem for NaghdiSystem<'_> {
         }]
     }
 
-    fn results(&self, scene: &Scene, problem: &ContactProblem, report: &SolveReport) -> ResultData {
+    fn results(&self, problem: &ContactProblem, report: &SolveReport) -> ResultData {
         let full = self.full_coefficients(&report.x);
         let layout = &self.layout;
         let nv = layout.n_vertices;
         let mut data = ResultData {
-            scene_text: scene.text.clone(),
             write_edges: layout
                 .fields
                 .iter()
@@ -520,15 +549,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             components: 3,
             location: Location::Vertex,
         });
-        // /dofs: u and the rotation unknowns (r or θ) as component blocks in a
-        // row, ψ; each with the `space` attribute naming its blocks.
-        let groups: Vec<(&str, Vec<usize>)> = match layout.kind {
-            ShellElementKind::P1bP0 => {
-                vec![("u", vec![0, 1, 2]), ("r", vec![3, 4, 5]), ("psi", vec![6])]
-            }
-            ShellElementKind::P2bPsri => vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])],
-        };
-        for (name, fields) in groups {
+        for (name, fields) in self.dof_groups() {
             let dofs: Vec<f64> = fields
                 .iter()
                 .flat_map(|&f| layout.component(&full, f).iter().copied())
@@ -547,7 +568,7 @@ impl ModelSystem for NaghdiSystem<'_> {
         let (u3_min, u3_max) = min_max(u3);
         let mut attrs: Vec<(&str, AttrValue)> = vec![
             ("model", AttrValue::Str("naghdi".into())),
-            ("element", AttrValue::Str(scene.element.name().into())),
+            ("element", AttrValue::Str(self.element.name().into())),
             ("chart", AttrValue::Str(self.chart.kind().into())),
             ("simulated", AttrValue::Str(self.simulated.join(","))),
             ("n_dofs", AttrValue::I64(self.n_dofs() as i64)),
@@ -568,7 +589,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             attrs.push((lo_name, AttrValue::F64(lo)));
             attrs.push((hi_name, AttrValue::F64(hi)));
         }
-        if let Some(x) = scene.output.probe {
+        if let Some(x) = self.probe {
             if let Some((t, l)) = PointLocator::new(self.mesh).locate(x) {
                 for (c, name) in ["probe_u1", "probe_u2", "probe_u3"].into_iter().enumerate() {
                     let field = layout.fields[displacement[c]];
@@ -618,6 +639,44 @@ impl ModelSystem for NaghdiSystem<'_> {
         data
     }
 
+    fn primal_from_dofs(&self, dofs: &[(String, Vec<f64>)]) -> Result<Vec<f64>> {
+        let layout = &self.layout;
+        let mut full = vec![0.0; layout.n_total()];
+        for (name, fields) in self.dof_groups() {
+            let len: usize = fields.iter().map(|&f| layout.fields[f].len).sum();
+            let mut values = named_dofs(dofs, name, len)?;
+            for &f in &fields {
+                let field = layout.fields[f];
+                let (block, rest) = values.split_at(field.len);
+                full[field.offset..field.offset + field.len].copy_from_slice(block);
+                values = rest;
+            }
+        }
+        // ψ' = ψ/σ in the algebraic problem (set by `assemble`).
+        if let Some(psi) = layout.psi() {
+            let sigma = self.tangency_scale.get();
+            let f = &layout.fields[psi];
+            full[f.offset..f.offset + f.len]
+                .iter_mut()
+                .for_each(|v| *v /= sigma);
+        }
+        Ok(self.numbering.restrict(&full))
+    }
+
+    /// The constraint plot (thesis Fig. 5.6) is the shell's own.
+    fn plot(&self, kind: PlotKind, path: &Path, title: &str, figure: &FigureData) -> Result<()> {
+        match (kind, figure.field("constraint"), figure.field("phi")) {
+            (PlotKind::Constraint, Some(w), Some(phi)) => {
+                plot_constraint(path, self.mesh, &w.values, &phi.values, title)
+            }
+            _ => plot_result_field(self.mesh, kind, path, title, figure),
+        }
+    }
+
+    fn mesh(&self) -> &Mesh {
+        self.mesh
+    }
+
     /// The dof count: U (and ψ) with boundary dofs, plus λ with contact.
     fn n_dofs(&self) -> usize {
         let contact = if self.phi.is_some() {
@@ -634,6 +693,32 @@ fn min_max(v: &[f64]) -> (f64, f64) {
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
             (lo.min(*x), hi.max(*x))
         })
+}
+
+/// A rigid translation along e_c is a zero-energy motion unless some dof of
+/// u_c is fixed: then K is singular whatever the loads (the plane's contact
+/// acts along e3 only and one-sidedly). Refused before assembling, naming
+/// the free directions. (Rigid rotations are not detected here; a
+/// factorisation that fails on them reports the singular pivot.)
+fn check_translations_fixed(scene: &Scene, layout: &ShellLayout, fixed: &[bool]) -> Result<()> {
+    let free: Vec<&str> = (0..3)
+        .filter(|&c| {
+            let f = layout.fields[layout.field_of(FieldRole::Displacement(c)).expect("u")];
+            !fixed[f.offset..f.offset + f.len].iter().any(|&b| b)
+        })
+        .map(|c| ["u1 (e1)", "u2 (e2)", "u3 (e3)"][c])
+        .collect();
+    if free.is_empty() {
+        return Ok(());
+    }
+    Err(Error::Scene {
+        file: scene.source.clone(),
+        field: "shell.clamped".into(),
+        reason: format!(
+            "the boundary conditions fix no dof of {}: the shell can move rigidly along those directions (a floating shell has no unique equilibrium); clamp a part (shell.clamped) or give [[shell.boundary]] conditions that hold each direction somewhere",
+            free.join(", ")
+        ),
+    })
 }
 
 /// The chart must be regular (|a1×a2| > 0) at every vertex and quadrature
@@ -662,24 +747,49 @@ fn check_chart_regular(mesh: &Mesh, scene: &Scene, chart: &Chart) -> Result<()> 
         })
 }
 
-/// A clamped point has u = r = 0, so its constraint value is 0: where Φ_h > 0
-/// at a clamped vertex the obstacle would need the clamped edge to
-/// penetrate, and no admissible displacement exists. Detected before iterating.
-fn check_feasible(mesh: &Mesh, scene: &Scene, phi: &[f64], clamped: Option<&[i32]>) -> Result<()> {
-    let mask = mesh.boundary_vertex_mask(clamped);
-    let scale = phi.iter().fold(0.0f64, |m, p| m.max(p.abs())).max(1.0);
-    let worst = (0..mesh.n_vertices())
-        .filter(|&v| mask[v])
-        .max_by(|&a, &b| phi[a].total_cmp(&phi[b]));
-    match worst {
-        Some(v) if phi[v] > 1e-12 * scale => Err(Error::Scene {
-            file: scene.source.clone(),
-            field: "obstacle".into(),
-            reason: format!(
-                "infeasible: the clamped boundary at ({:.6}, {:.6}) lies {:.6e} below the obstacle (Φ_h > 0 there), so no admissible displacement exists (thesis (2.2) asks Φ ≤ 0)",
-                mesh.vertices[v][0], mesh.vertices[v][1], phi[v]
-            ),
-        }),
-        _ => Ok(()),
+/// The shell's constraint w = (u − ε/2 r)·e3 against Φ_h (thesis Fig. 5.6):
+/// a colour map of w − Φ_h (zero on the contact zone) at `path`, and the
+/// profiles of w and Φ_h along the axes y = 0 and x = 0 (through the
+/// vertices that lie on them) at `<stem>-profiles.<ext>`.
+fn plot_constraint(path: &Path, mesh: &Mesh, w: &[f64], phi: &[f64], title: &str) -> Result<()> {
+    let gap: Vec<f64> = w.iter().zip(phi).map(|(a, b)| a - b).collect();
+    plot::plot_vertex_field(path, mesh, &gap, &format!("{title}: (u − ε/2 r)·e3 − Φ_h"))?;
+    let diameter = mesh.h_max().max(
+        mesh.vertices
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v[0].abs()).max(v[1].abs())),
+    );
+    let mut series = Vec::new();
+    for (axis, along, across) in [("y = 0", 0, 1), ("x = 0", 1, 0)] {
+        let on_axis: Vec<usize> = (0..mesh.n_vertices())
+            .filter(|&v| mesh.vertices[v][across].abs() <= 1e-9 * diameter)
+            .collect();
+        if on_axis.len() < 3 {
+            continue;
+        }
+        let line = |f: &[f64]| -> Vec<(f64, f64)> {
+            on_axis
+                .iter()
+                .map(|&v| (mesh.vertices[v][along], f[v]))
+                .collect()
+        };
+        series.push((format!("(u − ε/2 r)·e3 on {axis}"), line(w)));
+        series.push((format!("Φ_h on {axis}"), line(phi)));
     }
+    if series.is_empty() {
+        return Ok(());
+    }
+    let stem = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("constraint");
+    let ext = path.extension().and_then(|s| s.to_str()).unwrap_or("png");
+    let profiles = path.with_file_name(format!("{stem}-profiles.{ext}"));
+    plot::plot_lines(
+        &profiles,
+        &series,
+        "x or y",
+        "z",
+        &format!("{title}: profiles"),
+    )
 }
