@@ -6,7 +6,7 @@ use obstacle_fem::error::{Error, Result};
 use obstacle_fem::output::{read_result, summary};
 use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
-use obstacle_fem::scene::Scene;
+use obstacle_fem::scene::{command_line_overrides, Scene};
 use obstacle_fem::study::{
     csv_table, history_tables, markdown_table, reference_study, run_study, write_convergence_plots,
     write_work_precision, Study,
@@ -204,7 +204,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
             quiet,
         } => {
-            let scene = Scene::load(&scene, &set)?;
+            let scene = Scene::load(&scene, &command_line_overrides(&set))?;
             let out =
                 out.unwrap_or_else(|| PathBuf::from(format!("build/results/{}.h5", scene.name)));
             let s = run_scene(&scene, &out, !quiet)?;
@@ -236,7 +236,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Mesh { scene, set, out } => {
-            let scene = Scene::load(&scene, &set)?;
+            let scene = Scene::load(&scene, &command_line_overrides(&set))?;
             let out =
                 out.unwrap_or_else(|| PathBuf::from(format!("build/meshes/{}.msh", scene.name)));
             if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -263,7 +263,11 @@ fn run(cli: Cli) -> Result<()> {
             set,
             out,
             iterations,
-        } => obstacle_fem::freefem::command(&Scene::load(&scene, &set)?, out, iterations),
+        } => obstacle_fem::freefem::command(
+            &Scene::load(&scene, &command_line_overrides(&set))?,
+            out,
+            iterations,
+        ),
         Command::Compare {
             a,
             b,

@@ -947,6 +947,31 @@ pub fn read_toml_file<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> 
 
 /// Applies `a.b.c=value` to a TOML table. The value is parsed as TOML
 /// (numbers, booleans, arrays, quoted strings); a bare word is taken as a string.
+/// `--set` overrides as typed on the command line: a relative `mesh.file`
+/// or `mesh.geo` there names a file from where the command runs (inside a
+/// scene or a study it is relative to that file's folder), so it is made
+/// absolute, and so recorded in the result.
+pub fn command_line_overrides(sets: &[String]) -> Vec<String> {
+    sets.iter().map(|s| command_line_path(s)).collect()
+}
+
+fn command_line_path(assignment: &str) -> String {
+    let Some((key, raw)) = assignment.split_once('=') else {
+        return assignment.to_string();
+    };
+    let unquoted = raw.trim().trim_matches('"');
+    if !matches!(key.trim(), "mesh.file" | "mesh.geo") || Path::new(unquoted).is_absolute() {
+        return assignment.to_string();
+    }
+    match std::env::current_dir() {
+        Ok(cwd) => {
+            let path = cwd.join(unquoted).display().to_string();
+            format!("{}={}", key.trim(), toml::Value::String(path))
+        }
+        Err(_) => assignment.to_string(),
+    }
+}
+
 fn apply_override(
     table: &mut toml::Table,
     assignment: &str,
@@ -967,6 +992,20 @@ fn apply_override(
         Ok(mut t) => t.remove("v").expect("parsed one key"),
         Err(_) => toml::Value::String(raw.to_string()),
     };
+    // A mesh given one way replaces the others: a file replaces the .geo and
+    // its sizes, a .geo the file, a structured n the target size h and back.
+    let replaced: &[&str] = match key {
+        "mesh.file" => &["geo", "n", "h", "parameters"],
+        "mesh.geo" => &["file"],
+        "mesh.n" => &["file", "h"],
+        "mesh.h" => &["file", "n"],
+        _ => &[],
+    };
+    if let Some(toml::Value::Table(mesh)) = table.get_mut("mesh") {
+        for k in replaced {
+            mesh.remove(*k);
+        }
+    }
     let mut node = table;
     for (i, part) in parts.iter().enumerate() {
         if i + 1 == parts.len() {
@@ -1035,6 +1074,36 @@ step_form = "mean"
         assert_eq!(s.solver.alpha, Some(Alpha::Keyword(AlphaKeyword::Auto)));
         assert!(s.text.contains("overrides"));
         assert_eq!(s.solver.tol, 1e-8);
+    }
+
+    #[test]
+    fn a_mesh_given_one_way_replaces_the_others() {
+        // DISK names a .geo with n = 8.
+        let s = parse(&["mesh.file=\"m.msh\""]).unwrap();
+        assert_eq!(s.mesh.file.as_deref(), Some("m.msh"));
+        assert_eq!(
+            (s.mesh.geo.as_deref(), s.mesh.n, s.mesh.h),
+            (None, None, None)
+        );
+        assert!(!s.text.contains("geo =") && s.text.contains("file = \"m.msh\""));
+        let s = parse(&["mesh.file=\"m.msh\"", "mesh.geo=\"d.geo\"", "mesh.h=0.2"]).unwrap();
+        assert_eq!(
+            (s.mesh.file.as_deref(), s.mesh.geo.as_deref()),
+            (None, Some("d.geo"))
+        );
+        assert_eq!((s.mesh.n, s.mesh.h), (None, Some(0.2)));
+        let s = parse(&["mesh.h=0.2", "mesh.n=4"]).unwrap();
+        assert_eq!((s.mesh.n, s.mesh.h), (Some(4), None));
+        // On the command line a relative mesh path is the working folder's.
+        let cwd = std::env::current_dir().unwrap();
+        let sets = command_line_overrides(&["mesh.file=m.msh".into(), "mesh.n=3".into()]);
+        assert_eq!(
+            sets[0],
+            format!("mesh.file=\"{}\"", cwd.join("m.msh").display())
+        );
+        assert_eq!(sets[1], "mesh.n=3");
+        let abs = command_line_overrides(&["mesh.geo=\"/x/d.geo\"".into()]);
+        assert_eq!(abs[0], "mesh.geo=\"/x/d.geo\"");
     }
 
     #[test]

@@ -23,19 +23,36 @@ fn solve_on_a_users_mesh_file_and_info() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("vertices"));
-    // mesh.file replaces geo (relative paths are relative to the scene; absolute here).
+    // `--set mesh.file=…` replaces the scene's geo and h; on the command line a
+    // relative path is relative to where the command runs.
     let out = dir.path().join("r.h5");
-    let o = run_obstacle(&[
-        "solve",
-        SCENE,
-        "--set",
-        &format!("mesh.file=\"{}\"", msh.display()),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    // `geo` and `file` together are rejected; a scene text without `geo` is needed.
-    assert!(!o.status.success());
-    assert!(text(&o).contains("not both"), "{}", text(&o));
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_obstacle"))
+        .current_dir(dir.path())
+        .env("CI", "1")
+        .args([
+            "solve",
+            common::manifest_path(SCENE).to_str().unwrap(),
+            "--set",
+            "mesh.file=user.msh",
+            "--set",
+            "output.plots=[]",
+            "--out",
+            "r.h5",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let run = obstacle_fem::output::read_result(&out).unwrap();
+    let recorded = &run.data.scene_text;
+    assert!(
+        recorded.contains(&format!("file = \"{}\"", msh.display()))
+            && !recorded.contains("geo =")
+            && !recorded.contains("h = 0.1"),
+        "the scene as run: {recorded}"
+    );
+    let user_mesh = obstacle_fem::mesh::Mesh::read_msh(&msh).unwrap();
+    assert_eq!(run.vertices.len(), user_mesh.n_vertices());
+    // And back: `--set mesh.geo=…` on a scene that names a file.
     let scene_text = std::fs::read_to_string(SCENE)
         .unwrap()
         .replace(
@@ -55,6 +72,29 @@ fn solve_on_a_users_mesh_file_and_info() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(out.exists() && out.with_extension("xdmf").exists());
+    let geo = common::manifest_path("meshes/disk.geo");
+    let meshed = dir.path().join("meshed.h5");
+    let o = run_obstacle(&[
+        "solve",
+        scene.to_str().unwrap(),
+        "--set",
+        &format!("mesh.geo={}", geo.display()),
+        "--set",
+        "mesh.n=4",
+        "--set",
+        "output.plots=[]",
+        "--out",
+        meshed.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let recorded = obstacle_fem::output::read_result(&meshed)
+        .unwrap()
+        .data
+        .scene_text;
+    assert!(
+        recorded.contains("geo =") && !recorded.contains("file ="),
+        "{recorded}"
+    );
     let o = run_obstacle(&["info", out.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");

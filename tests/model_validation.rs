@@ -5,7 +5,7 @@
 //! there with a message about a factorisation, or to report nonsense.
 
 mod common;
-use common::{run_obstacle, scene_arg, set_args, text};
+use common::{manifest_path, run_obstacle, scene_arg, set_args, text};
 
 /// Runs `solve` on a thesis scene with overrides; the output and whether a
 /// result file was written.
@@ -77,15 +77,15 @@ fn an_obstacle_above_the_membranes_boundary_values_is_infeasible() {
 
 #[test]
 fn exact_errors_apply_to_the_unit_disk_only() {
+    let square = format!(
+        "mesh.geo={}",
+        manifest_path("meshes/rectangle.geo").display()
+    );
     // The unit square is not the disk: errors against the disk's solution
     // were printed before.
     assert_refused(
         "obstacle-disk",
-        &[
-            "mesh.geo=\"../../meshes/rectangle.geo\"",
-            "mesh.h=0.25",
-            "obstacle.height=-0.1",
-        ],
+        &[&square, "mesh.h=0.25", "obstacle.height=-0.1"],
         &["output.errors", "not the unit disk", "radius"],
     );
     // No radial solution for these data (4k < g).
@@ -98,7 +98,7 @@ fn exact_errors_apply_to_the_unit_disk_only() {
     let (o, written) = solve(
         "obstacle-disk",
         &[
-            "mesh.geo=\"../../meshes/rectangle.geo\"",
+            &square,
             "mesh.h=0.25",
             "obstacle.height=-0.1",
             "output.errors=false",
