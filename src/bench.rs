@@ -33,7 +33,7 @@
 
 use crate::error::{Error, Result};
 use crate::linalg::{ReusableFactorization, Solves};
-use crate::output::{numeric_attr, read_result, ResultFile};
+use crate::output::read_result;
 use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model};
 use crate::plot;
 use crate::scene::{read_toml_file, Scene};
@@ -216,21 +216,13 @@ pub fn run_case(
         f.push(("seconds".into(), format!("{factor_and_solve:e}")));
     } else {
         let s = run_scene(&scene, out, false)?;
-        let file = read_result(out)?;
-        let attr = |name: &str| solver_attr(&file, name);
         f.push(("n_dofs".into(), s.n_dofs.to_string()));
         f.push(("iterations".into(), s.iterations.to_string()));
         f.push(("converged".into(), s.converged.to_string()));
         f.push(("stop".into(), s.stop_reason.clone()));
         f.push(("kkt".into(), format!("{:e}", s.measures.kkt)));
-        f.push((
-            "seconds".into(),
-            format!("{:e}", attr("wall_seconds").unwrap_or(f64::NAN)),
-        ));
-        f.push((
-            "factor_seconds".into(),
-            format!("{:e}", attr("factor_seconds").unwrap_or(f64::NAN)),
-        ));
+        f.push(("seconds".into(), format!("{:e}", s.solver_seconds)));
+        f.push(("factor_seconds".into(), format!("{:e}", s.factor_seconds)));
         let kkt = s.history.column("kkt").unwrap_or(&[]);
         for &tol in tols {
             let first = kkt.iter().position(|&v| v <= tol).map(|k| k + 1);
@@ -259,10 +251,6 @@ pub fn run_case(
         .map(|(k, v)| format!("{k}={v}"))
         .collect::<Vec<_>>()
         .join(" "))
-}
-
-fn solver_attr(file: &ResultFile, name: &str) -> Option<f64> {
-    numeric_attr(&file.data.solver_attrs, name)
 }
 
 /// Capped runs shorter than this give no estimate of the time to the tolerance.
@@ -932,12 +920,6 @@ fn label(row: &StudyRow, key: &str) -> Option<String> {
         .map(|(_, v)| v.trim_matches('"').to_string())
 }
 
-/// The solver wall time of a run (from its result file).
-fn run_seconds(row: &StudyRow) -> Result<f64> {
-    let f = read_result(&row.summary.result_file)?;
-    Ok(solver_attr(&f, "wall_seconds").unwrap_or(row.summary.wall_seconds))
-}
-
 fn study_scene_value(study: &Study, study_path: &Path, key: &str) -> Option<String> {
     let scene = Scene::load(
         &study_path
@@ -974,7 +956,7 @@ fn study_points(path: &Path, out_dir: &Path, errors: &mut ErrorsOf) -> Result<Ve
             method: label(row, "solver.method").unwrap_or_else(|| method0.clone()),
             level: label(row, "mesh.n").unwrap_or_default(),
             tol,
-            seconds: run_seconds(row)?,
+            seconds: row.summary.solver_seconds,
             iterations: row.summary.iterations,
             errors: errors(row)?,
         });
@@ -1040,7 +1022,7 @@ pub fn work_precision(
                     rrow.summary.h,
                     rrow.summary.iterations,
                     rrow.summary.measures.kkt,
-                    run_seconds(rrow)?
+                    rrow.summary.solver_seconds
                 );
                 let mut shell = Vec::new();
                 for p in against {

@@ -24,7 +24,6 @@
 //! FreeFEM tests use the same code.
 
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::Mesh;
 use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, ShellLayout};
 use crate::models::naghdi::geometry::Chart;
@@ -34,7 +33,7 @@ use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
     Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
 };
-use crate::solvers::spectrum::estimate_dual_spectrum;
+use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -319,22 +318,12 @@ pub fn resolve_alpha(scene: &Scene, problem: &ContactProblem) -> Result<f64> {
         }
         _ => {}
     }
-    // α = auto or alpha_factor × 2/s_max: the Rust run's Lanczos estimate.
-    let f = factorize_checked(
-        &problem.matrix,
-        problem.kind,
-        Solves::Many,
-        "α from the Lanczos estimate of s_max",
-    )?;
-    let step_form = solver.step_form.unwrap_or(StepForm::Mean);
-    let spectrum = estimate_dual_spectrum(problem, &f, step_form, 50);
-    crate::pipeline::uzawa_step(solver, spectrum).ok_or_else(|| {
-        scene_error(
-            scene,
-            "solver.alpha_factor",
-            "no estimate of s_max (no constraint rows): give `alpha` instead",
-        )
-    })
+    // α = auto or alpha_factor × 2/s_max: the Rust run's rule and Lanczos estimate.
+    uzawa_alpha_of(
+        problem,
+        crate::pipeline::uzawa_step(solver),
+        solver.step_form.unwrap_or(StepForm::Mean),
+    )
 }
 
 /// The script's command line for `scene` (mesh file, data, Uzawa plan);

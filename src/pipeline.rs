@@ -1,9 +1,9 @@
 //! One run of a scene, end to end: mesh (gmsh or a file) → model setup →
-//! assembly → factorisation → solver → result file. Each step is visible here.
+//! assembly → solver options → `solvers::solve` → result file. Each step is
+//! visible here.
 
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
-use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
@@ -11,12 +11,12 @@ use crate::models::{ExactErrors, FigureData, ModelSystem};
 use crate::output::{numeric_attr, write_result, AttrValue, ResultData};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
-use crate::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
-use crate::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
-use crate::solvers::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
-use crate::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
-use crate::solvers::uzawa_split::{uzawa_split, UzawaSplitOptions};
-use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport};
+use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
+use crate::solvers::dual_accelerated::DualAcceleratedOptions;
+use crate::solvers::spectrum::SpectrumEstimate;
+use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
+use crate::solvers::uzawa_split::UzawaSplitOptions;
+use crate::solvers::{History, KktMeasures, SolveReport, SolverOptions};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -43,8 +43,14 @@ pub struct RunSummary {
     /// The model's root attributes of the result file (u3 range, contact area, ...).
     pub attrs: Vec<(String, AttrValue)>,
     pub history: History,
+    /// The solver's wall time (`/solver/wall_seconds`: factorisations and
+    /// iterations; meshing, assembly and output excluded).
+    pub solver_seconds: f64,
+    /// The solver's factorisation time (`/solver/factor_seconds`).
+    pub factor_seconds: f64,
     /// Solver time after the factorisation (the iterations).
     pub solve_seconds: f64,
+    /// The whole run's wall time.
     pub wall_seconds: f64,
     pub result_file: PathBuf,
 }
@@ -86,28 +92,60 @@ pub fn scene_mesh_in_temp(scene: &Scene) -> Result<(tempfile::TempDir, Mesh)> {
     Ok((dir, mesh))
 }
 
-/// The dual step: the scene's number, or "auto" from a Lanczos estimate of
-/// the spectrum of S: 2/(s_max + s_min), the optimal fixed Richardson step,
-/// capped at 95% of the stability bound 2/s_max.
-pub fn choose_alpha(alpha: Alpha, spectrum: Option<SpectrumEstimate>) -> f64 {
-    match (alpha, spectrum) {
-        (Alpha::Value(a), _) => a,
-        (Alpha::Keyword(_), Some(s)) => (2.0 / (s.s_max + s.s_min)).min(1.9 / s.s_max),
-        (Alpha::Keyword(_), None) => 1.0,
+/// Uzawa's step rule of a solver spec: `alpha_factor` × 2/s_max (the hard
+/// cases), else the scene's α or "auto". Without `alpha` (allowed only
+/// without an obstacle, where Uzawa does not run) "auto".
+pub fn uzawa_step(solver: &SolverSpec) -> UzawaStep {
+    match (solver.alpha_factor, solver.alpha) {
+        (Some(factor), _) => UzawaStep::StabilityFactor(factor),
+        (None, Some(Alpha::Value(a))) => UzawaStep::Given(a),
+        (None, Some(Alpha::Keyword(_)) | None) => UzawaStep::Auto,
     }
 }
 
-/// Uzawa's step for a solver spec: `alpha_factor` × 2/s_max (the hard
-/// cases), else [`choose_alpha`]. None when a factor is given but there is
-/// no estimate of s_max (no constraint rows); the caller says so.
-pub fn uzawa_step(solver: &SolverSpec, spectrum: Option<SpectrumEstimate>) -> Option<f64> {
-    match (solver.alpha_factor, spectrum) {
-        (Some(factor), Some(s)) => Some(factor * 2.0 / s.s_max),
-        (Some(_), None) => None,
-        (None, _) => Some(choose_alpha(
-            solver.alpha.expect("validated with an obstacle"),
-            spectrum,
-        )),
+/// The solver options of a scene's `[solver]` table; `start_lambda`
+/// warm-starts the methods that take one, `show_progress` draws their progress.
+pub fn solver_options(
+    solver: &SolverSpec,
+    start_lambda: Option<Vec<f64>>,
+    show_progress: bool,
+) -> SolverOptions {
+    let max_iter = solver.max_iter as usize;
+    match solver.method {
+        Method::ActiveSet => SolverOptions::ActiveSet(ActiveSetOptions {
+            tol: solver.tol,
+            max_iter,
+            show_progress,
+            initial_lambda: start_lambda,
+            cold_start: match solver.cold_start {
+                ColdStartSpec::DepthBisection => ColdStart::DEPTH_BISECTION,
+                ColdStartSpec::Plain => ColdStart::Plain,
+            },
+            ..Default::default()
+        }),
+        Method::DualAccelerated => SolverOptions::DualAccelerated(DualAcceleratedOptions {
+            tol: solver.tol,
+            max_iter,
+            show_progress,
+            initial_lambda: start_lambda,
+            ..Default::default()
+        }),
+        Method::UzawaSplit => SolverOptions::UzawaSplit(UzawaSplitOptions {
+            tol: solver.tol,
+            max_iter,
+            show_progress,
+            ..Default::default()
+        }),
+        Method::Uzawa => SolverOptions::Uzawa(UzawaOptions {
+            step: uzawa_step(solver),
+            step_form: solver.step_form.unwrap_or(StepForm::Mean),
+            max_iter,
+            tol: solver.tol,
+            stop: solver.stop,
+            thesis_tol: solver.thesis_tol,
+            dual_norm: solver.dual_norm,
+            show_progress,
+        }),
     }
 }
 
@@ -146,12 +184,10 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
     // The solver the scene names; without an obstacle, one linear solve.
     let start_lambda = nested_start(scene, &mesh)?;
-    let (report, alpha, spectrum) = solve(
-        scene,
+    let report = crate::solvers::solve(
         &problem,
-        system.as_ref(),
-        start_lambda,
-        show_progress,
+        &solver_options(&scene.solver, start_lambda, show_progress),
+        &system.probes(),
     )?;
 
     let mut data = system.results(&problem, &report);
@@ -164,7 +200,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     if let Some(e) = &errors {
         data.root_attrs.extend(e.attrs());
     }
-    record_solver(&mut data, scene, &report, spectrum);
+    record_solver(&mut data, &scene.solver, &report);
     write_result(out, &mesh, &data)?;
     if scene.mesh.file.is_none() {
         let msh = out.with_extension("msh");
@@ -189,11 +225,13 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         stop_reason: report.stop_reason.clone(),
         last_dual_step: report.last_dual_step(),
         measures: report.measures,
-        alpha,
-        spectrum,
+        alpha: report.alpha,
+        spectrum: report.spectrum,
         errors,
         attrs: data.root_attrs.clone(),
         history: report.history.clone(),
+        solver_seconds: report.wall_seconds,
+        factor_seconds: report.factor_seconds,
         solve_seconds: report.wall_seconds - report.factor_seconds,
         wall_seconds: start.elapsed().as_secs_f64(),
         result_file: out.to_path_buf(),
@@ -228,7 +266,11 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
         return Ok(None); // not a P0 multiplier: no triangle-wise transfer
     }
     let start = nested_start(&coarse, &coarse_mesh)?;
-    let (report, _, _) = solve(&coarse, &problem, system.as_ref(), start, false)?;
+    let report = crate::solvers::solve(
+        &problem,
+        &solver_options(&coarse.solver, start, false),
+        &system.probes(),
+    )?;
     let locator = PointLocator::new(&coarse_mesh);
     let lambda = mesh
         .triangles
@@ -244,104 +286,6 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
         })
         .collect();
     Ok(Some(lambda))
-}
-
-/// Runs the scene's solver on the problem. Uzawa and the linear solve share
-/// the one factorisation done here; the other methods factorise what they
-/// need. `start_lambda` warm-starts the methods that take one.
-fn solve(
-    scene: &Scene,
-    problem: &ContactProblem,
-    system: &dyn ModelSystem,
-    start_lambda: Option<Vec<f64>>,
-    show_progress: bool,
-) -> Result<(SolveReport, Option<f64>, Option<SpectrumEstimate>)> {
-    let solver = &scene.solver;
-    let max_iter = solver.max_iter as usize;
-    if problem.constraint.is_some() && solver.method != Method::Uzawa {
-        let report = match solver.method {
-            Method::ActiveSet => active_set(
-                problem,
-                &ActiveSetOptions {
-                    tol: solver.tol,
-                    max_iter,
-                    show_progress,
-                    initial_lambda: start_lambda,
-                    cold_start: match solver.cold_start {
-                        ColdStartSpec::DepthBisection => ColdStart::DEPTH_BISECTION,
-                        ColdStartSpec::Plain => ColdStart::Plain,
-                    },
-                    ..Default::default()
-                },
-            )?,
-            Method::DualAccelerated => dual_accelerated(
-                problem,
-                &DualAcceleratedOptions {
-                    tol: solver.tol,
-                    max_iter,
-                    show_progress,
-                    initial_lambda: start_lambda,
-                    ..Default::default()
-                },
-            )?,
-            Method::UzawaSplit => uzawa_split(
-                problem,
-                &UzawaSplitOptions {
-                    tol: solver.tol,
-                    max_iter,
-                    show_progress,
-                    ..Default::default()
-                },
-            )?,
-            Method::Uzawa => unreachable!("handled below"),
-        };
-        return Ok((report, None, None));
-    }
-    // One factorisation, reused by every iteration.
-    let t = Instant::now();
-    let what = problem.kind.describe();
-    // Uzawa: one solve per iteration; without contact: one solve.
-    let solves = if problem.constraint.is_some() {
-        Solves::Many
-    } else {
-        Solves::Few
-    };
-    let factorization = factorize_checked(&problem.matrix, problem.kind, solves, what)?;
-    let factor_seconds = t.elapsed().as_secs_f64();
-    if problem.constraint.is_none() {
-        return Ok((
-            solve_linear(problem, &factorization, factor_seconds)?,
-            None,
-            None,
-        ));
-    }
-    let step_form = solver.step_form.unwrap_or(StepForm::Mean);
-    let spectrum = estimate_dual_spectrum(problem, &factorization, step_form, 50);
-    let alpha = uzawa_step(solver, spectrum).ok_or_else(|| {
-        Error::numerical(
-            "Uzawa",
-            "solver.alpha_factor",
-            "no estimate of s_max (no constraint rows): give `alpha` instead",
-        )
-    })?;
-    let options = UzawaOptions {
-        alpha,
-        step_form,
-        max_iter,
-        tol: solver.tol,
-        stop: solver.stop,
-        thesis_tol: solver.thesis_tol,
-        dual_norm: solver.dual_norm,
-        show_progress,
-    };
-    let report = uzawa(
-        problem,
-        &factorization,
-        factor_seconds,
-        &options,
-        &system.probes(),
-    )?;
-    Ok((report, Some(alpha), spectrum))
 }
 
 /// The plots the scene asks for, beside the result file; nothing else is
@@ -374,14 +318,8 @@ fn write_plots(
 }
 
 /// The `/solver` attributes and history of docs/formulation.md §5.
-fn record_solver(
-    data: &mut ResultData,
-    scene: &Scene,
-    report: &SolveReport,
-    spectrum: Option<SpectrumEstimate>,
-) {
+fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
     let m = &report.measures;
-    let s = &scene.solver;
     let mut attrs: Vec<(String, AttrValue)> = vec![
         ("algorithm".into(), AttrValue::Str(report.algorithm.clone())),
         ("method".into(), AttrValue::Str(s.method.name().into())),
@@ -432,7 +370,7 @@ fn record_solver(
             attrs.push((name.clone(), AttrValue::F64(*v)));
         }
     }
-    if let Some(sp) = spectrum {
+    if let Some(sp) = report.spectrum {
         attrs.push(("s_max_estimate".into(), AttrValue::F64(sp.s_max)));
         attrs.push(("s_min_ritz".into(), AttrValue::F64(sp.s_min)));
         attrs.push(("stability_bound".into(), AttrValue::F64(2.0 / sp.s_max)));

@@ -84,3 +84,10 @@ impl IterationProgress {
         }
     }
 }
+
+/// An iteration that ends early (an error) clears its bar too.
+impl Drop for IterationProgress {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}

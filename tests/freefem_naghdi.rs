@@ -36,7 +36,7 @@ use obstacle_fem::models::naghdi::forms::{
 };
 use obstacle_fem::models::naghdi::geometry::{Chart, Material};
 use obstacle_fem::scene::{DualNorm, StepForm, StopRule};
-use obstacle_fem::solvers::uzawa::{solve_linear, uzawa, UzawaOptions};
+use obstacle_fem::solvers::uzawa::{solve_linear, uzawa, UzawaOptions, UzawaStep};
 use std::path::{Path, PathBuf};
 use std::process::Output;
 use std::time::Instant;
@@ -127,7 +127,7 @@ fn rust_run(mesh: &Mesh, uzawa_form: Option<(StepForm, usize)>) -> Run {
     let report = match uzawa_form {
         Some((step_form, max_iter)) => {
             let options = UzawaOptions {
-                alpha: ALPHA,
+                step: UzawaStep::Given(ALPHA),
                 step_form,
                 max_iter,
                 tol: 0.0,

@@ -11,7 +11,7 @@
 //! The tests assert least-squares slopes over the finer levels with a margin
 //! for the unstructured meshes: P1⊕B3 L² ≥ 1.8, H¹ ≥ 0.88; P2 L² ≥ 2.0, H¹ ≥ 1.3.
 
-use obstacle_fem::output::{read_result, AttrValue};
+use obstacle_fem::output::{numeric_attr, read_result, AttrValue};
 use obstacle_fem::pipeline::{run_scene, RunSummary};
 use obstacle_fem::scene::Scene;
 use obstacle_fem::Error;
@@ -303,4 +303,23 @@ fn no_obstacle_is_one_linear_solve_and_runs_are_reproducible() {
             .collect()
     };
     assert_eq!(bits(&fa), bits(&fb));
+}
+
+/// The run summary carries what `/solver` records of the solver's run (its
+/// wall and factorisation times, Uzawa's α and Lanczos estimate), so that
+/// bench and study need not re-read the file just written.
+#[test]
+fn the_summary_carries_the_solver_times_and_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = run(dir.path(), "summary", &["mesh.n=8", "output.plots=[]"]).unwrap();
+    let file = read_result(&s.result_file).unwrap();
+    let attr = |name: &str| numeric_attr(&file.data.solver_attrs, name).unwrap();
+    assert_eq!(s.solver_seconds, attr("wall_seconds"));
+    assert_eq!(s.factor_seconds, attr("factor_seconds"));
+    assert_eq!(s.solve_seconds, s.solver_seconds - s.factor_seconds);
+    assert!(s.factor_seconds <= s.solver_seconds && s.solver_seconds <= s.wall_seconds);
+    assert_eq!(s.alpha, Some(attr("alpha")));
+    let spectrum = s.spectrum.expect("Uzawa's estimate");
+    assert_eq!(spectrum.s_max, attr("s_max_estimate"));
+    assert_eq!(spectrum.s_min, attr("s_min_ritz"));
 }

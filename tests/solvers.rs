@@ -26,8 +26,11 @@ use obstacle_fem::scene::{Scene, StepForm};
 use obstacle_fem::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
 use obstacle_fem::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions, Restart};
 use obstacle_fem::solvers::spectrum::estimate_dual_spectrum;
+use obstacle_fem::solvers::uzawa::{UzawaOptions, UzawaStep};
 use obstacle_fem::solvers::uzawa_split::{uzawa_split, PsiRiesz, SplitSteps, UzawaSplitOptions};
-use obstacle_fem::solvers::{Constraint, ContactProblem, SolveReport};
+use obstacle_fem::solvers::{
+    solve, Constraint, ContactProblem, DualNorm, SolveReport, SolverOptions, StopRule,
+};
 use obstacle_fem::Error;
 use std::path::Path;
 
@@ -630,4 +633,93 @@ fn ldlt_falls_back_to_lu_when_the_signs_are_wrong() {
     assert_eq!(analyses, 2);
     assert_eq!(diff, 0.0);
     assert!(res < 1e-10, "{res:e}");
+}
+
+/// Uzawa through the entry point with the step `step`.
+fn uzawa_options(step: UzawaStep) -> SolverOptions {
+    SolverOptions::Uzawa(UzawaOptions {
+        step,
+        step_form: StepForm::Mean,
+        max_iter: 100_000,
+        tol: 1e-8,
+        stop: StopRule::Kkt,
+        thesis_tol: 0.0,
+        dual_norm: DualNorm::L2,
+        show_progress: false,
+    })
+}
+
+/// The one entry point `solvers::solve`: each method gives the report of
+/// its own function bit for bit; Uzawa's report carries α, chosen by its
+/// rule from the Lanczos estimate it also carries; without a constraint
+/// every method is the one linear solve.
+#[test]
+fn the_entry_point_runs_every_method_and_the_linear_solve() {
+    let problem = membrane("p1b-p0", 8);
+    let direct = [
+        active_set(&problem, &ActiveSetOptions::default()).unwrap(),
+        dual_accelerated(&problem, &DualAcceleratedOptions::default()).unwrap(),
+        uzawa_split(&problem, &UzawaSplitOptions::default()).unwrap(),
+    ];
+    let options = [
+        SolverOptions::ActiveSet(ActiveSetOptions::default()),
+        SolverOptions::DualAccelerated(DualAcceleratedOptions::default()),
+        SolverOptions::UzawaSplit(UzawaSplitOptions::default()),
+    ];
+    for (d, o) in direct.iter().zip(&options) {
+        let r = solve(&problem, o, &[]).unwrap();
+        assert_eq!(r.algorithm, d.algorithm);
+        assert_eq!(r.iterations, d.iterations, "{}", r.algorithm);
+        assert!(r.x == d.x && r.lambda == d.lambda, "{}", r.algorithm);
+        assert!(r.converged && r.alpha.is_none() && r.spectrum.is_none());
+    }
+
+    let f = factorize_checked(&problem.matrix, problem.kind, Solves::Many, "A").unwrap();
+    let s = estimate_dual_spectrum(&problem, &f, StepForm::Mean, 50).unwrap();
+    for (step, alpha) in [
+        (
+            UzawaStep::Auto,
+            (2.0 / (s.s_max + s.s_min)).min(1.9 / s.s_max),
+        ),
+        (UzawaStep::StabilityFactor(0.5), 1.0 / s.s_max),
+        (UzawaStep::Given(5.0), 5.0),
+    ] {
+        let r = solve(&problem, &uzawa_options(step), &[]).unwrap();
+        print(&format!("entry point, Uzawa {step:?}"), &r);
+        assert_eq!(r.algorithm, "uzawa");
+        assert_eq!(r.alpha, Some(alpha), "{step:?}");
+        assert_eq!(parameter(&r, "alpha"), alpha);
+        let estimate = r.spectrum.expect("Uzawa carries its estimate");
+        assert_eq!((estimate.s_max, estimate.s_min), (s.s_max, s.s_min));
+        assert!(
+            r.converged && r.stop_reason == "kkt",
+            "{step:?}: {}",
+            r.stop_reason
+        );
+        assert!(rel_diff(&r.lambda, &direct[0].lambda) < 1e-5, "{step:?}");
+    }
+
+    let free = ContactProblem {
+        constraint: None,
+        ..membrane("p1b-p0", 8)
+    };
+    let mut reports: Vec<SolveReport> = options
+        .iter()
+        .map(|o| solve(&free, o, &[]).unwrap())
+        .collect();
+    reports.push(solve(&free, &uzawa_options(UzawaStep::Auto), &[]).unwrap());
+    for r in &reports {
+        assert_eq!(
+            (r.algorithm.as_str(), r.stop_reason.as_str()),
+            ("linear", "linear")
+        );
+        assert!(r.converged && r.iterations == 1 && r.history.is_empty());
+        assert!(r.lambda.is_empty() && r.alpha.is_none());
+        assert!(
+            r.measures.stationarity < 1e-12,
+            "{:.3e}",
+            r.measures.stationarity
+        );
+        assert!(r.x == reports[0].x);
+    }
 }

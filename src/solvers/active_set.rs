@@ -62,15 +62,13 @@
 //! an earlier iteration is cycling (possible when A is not an M-matrix);
 //! both are errors that say so. `max_iter` gives a non-converged report.
 
-use super::measures::{kkt_measures, History, KktMeasures};
-use super::uzawa::solve_linear;
-use super::{ContactProblem, SolveReport};
+use super::measures::kkt_measures;
+use super::monitor::check_finite;
+use super::uzawa::solve_unconstrained;
+use super::{named, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{
-    factorize_checked, first_non_finite, refine, MatrixKind, ReusableFactorization, Solves,
-};
 use crate::linalg::{mat_vec, norm_inf};
-use crate::progress::IterationProgress;
+use crate::linalg::{refine, MatrixKind, ReusableFactorization, Solves};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::time::Instant;
 
@@ -250,11 +248,7 @@ impl NewtonMatrix {
 pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
     let start = Instant::now();
     let Some(c) = problem.constraint.as_ref() else {
-        let t = Instant::now();
-        let f = factorize_checked(&problem.matrix, problem.kind, Solves::Few, "system matrix")?;
-        let mut report = solve_linear(problem, &f, t.elapsed().as_secs_f64())?;
-        report.wall_seconds = start.elapsed().as_secs_f64();
-        return Ok(report);
+        return solve_unconstrained(problem);
     };
     let (n, m) = (problem.n(), c.obstacle.len());
     for (name, len, want) in [
@@ -320,15 +314,14 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         Solves::Few,
         "active-set Newton matrix",
     )?;
-    let mut factor_seconds = t.elapsed().as_secs_f64();
-
-    let mut history = History::for_solver(&EXTRA_COLUMNS);
-    let mut progress = IterationProgress::new(
-        "Active set",
-        options.max_iter,
-        options.tol,
-        options.show_progress,
-    );
+    let mut report = ReportBuilder::new("active-set", start, 0.0, t.elapsed().as_secs_f64())
+        .with_history(&EXTRA_COLUMNS)
+        .iterating(
+            "Active set",
+            options.max_iter,
+            options.tol,
+            options.show_progress,
+        );
     let mut seen: Vec<Vec<bool>> = Vec::new();
     let mut bisection = match options.cold_start {
         ColdStart::DepthBisection { probes }
@@ -342,13 +335,9 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     let mut previous = vec![false; m];
     let mut lambda = lambda0;
     let mut x = vec![0.0; n];
-    let mut measures = KktMeasures::default();
-    let mut iterations = 0;
-    let mut stop_reason = "max_iter";
     let mut max_linear_residual = 0.0f64;
     let mut rhs = vec![0.0; n + m];
     for k in 1..=options.max_iter {
-        iterations = k;
         newton.set_active(&active);
         rhs[..n].copy_from_slice(&problem.rhs);
         for i in 0..m {
@@ -361,7 +350,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         let t = Instant::now();
         let (factorization, mut z, _) =
             factorizer.factorize_and_solve(&newton.matrix, &rhs, "active-set Newton matrix")?;
-        factor_seconds += t.elapsed().as_secs_f64();
+        report.factor_seconds += t.elapsed().as_secs_f64();
         // LU: refinement steps on top; LDLᵀ solves refine themselves.
         let steps = if factorizer.method() == "LU" {
             options.refinement_steps
@@ -370,13 +359,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         };
         let linear_residual = refine(&newton.matrix, &factorization, &rhs, &mut z, steps);
         max_linear_residual = max_linear_residual.max(linear_residual);
-        if let Some(i) = first_non_finite(&z) {
-            return Err(Error::numerical(
-                STAGE,
-                "Newton step",
-                format!("non-finite value at index {i} in iteration {k}"),
-            ));
-        }
+        check_finite(STAGE, k, "Newton step", &z)?;
         x.copy_from_slice(&z[..n]);
         let new_lambda: Vec<f64> = (0..m)
             .map(|i| {
@@ -393,13 +376,13 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             .fold(0.0f64, |s, (a, b)| s.max((a - b).abs()));
         lambda = new_lambda;
         let cx = mat_vec(&c.matrix, &x);
-        measures = kkt_measures(problem, &x, &lambda, Some(&cx));
+        let measures = kkt_measures(problem, &x, &lambda, Some(&cx));
         let added = (0..m).filter(|&i| active[i] && !previous[i]).count();
         let removed = (0..m).filter(|&i| !active[i] && previous[i]).count();
-        history.push_iteration(
+        report.record(
             k,
             dual_step,
-            &measures,
+            measures,
             &[
                 active.iter().filter(|&&a| a).count() as f64,
                 (added + removed) as f64,
@@ -408,9 +391,8 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
                 linear_residual,
             ],
         );
-        progress.update(k, measures.kkt, dual_step);
         if measures.kkt <= options.tol {
-            stop_reason = "kkt";
+            report.stop("kkt");
             break;
         }
         // The next active set.
@@ -434,7 +416,6 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             }
         }
         if next == active {
-            progress.finish();
             return Err(Error::numerical(
                 STAGE,
                 "KKT measure",
@@ -448,7 +429,6 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         }
         seen.push(active.clone());
         if let Some(j) = seen.iter().position(|s| *s == next) {
-            progress.finish();
             return Err(Error::numerical(
                 STAGE,
                 "active set 𝒜",
@@ -462,36 +442,21 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         }
         previous = std::mem::replace(&mut active, next);
     }
-    progress.finish();
     let c_min = c_rule.iter().cloned().fold(f64::INFINITY, f64::min);
     let c_max = c_rule.iter().cloned().fold(0.0, f64::max);
-    Ok(SolveReport {
-        algorithm: "active-set".into(),
-        x,
-        lambda,
-        iterations,
-        converged: measures.kkt <= options.tol,
-        stop_reason: stop_reason.into(),
-        measures,
-        history,
-        factor_seconds,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        parameters: vec![
-            ("tol".into(), options.tol),
-            ("c_min".into(), c_min),
-            ("c_max".into(), c_max),
-            (
-                "symbolic_analyses".into(),
-                factorizer.symbolic_analyses() as f64,
-            ),
-            (
-                "numeric_factorizations".into(),
-                factorizer.numeric_factorizations() as f64,
-            ),
-            ("max_linear_residual".into(), max_linear_residual),
-            ("bisection_probes".into(), probes as f64),
-        ],
-    })
+    let parameters = named(&[
+        ("tol", options.tol),
+        ("c_min", c_min),
+        ("c_max", c_max),
+        ("symbolic_analyses", factorizer.symbolic_analyses() as f64),
+        (
+            "numeric_factorizations",
+            factorizer.numeric_factorizations() as f64,
+        ),
+        ("max_linear_residual", max_linear_residual),
+        ("bisection_probes", probes as f64),
+    ]);
+    Ok(report.finish(x, lambda, parameters))
 }
 
 fn count(set: &[bool]) -> usize {

@@ -28,15 +28,14 @@
 //! small), and stagnation (the best KKT measure did not improve by 1% over
 //! `stall_window` iterations).
 
-use super::check_finite;
-use super::measures::{kkt_measures, History, KktMeasures};
+use super::measures::kkt_measures;
+use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
-use super::uzawa::solve_linear;
-use super::{ContactProblem, SolveReport};
+use super::uzawa::solve_unconstrained;
+use super::{factorize_system, named, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, Solves};
+use crate::linalg::Solves;
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
-use crate::progress::IterationProgress;
 use crate::solvers::StepForm;
 use std::time::Instant;
 
@@ -97,16 +96,11 @@ pub fn dual_accelerated(
     problem: &ContactProblem,
     options: &DualAcceleratedOptions,
 ) -> Result<SolveReport> {
-    let start = Instant::now();
-    let t = Instant::now();
-    let factorization =
-        factorize_checked(&problem.matrix, problem.kind, Solves::Many, "system matrix")?;
-    let factor_seconds = t.elapsed().as_secs_f64();
     let Some(c) = problem.constraint.as_ref() else {
-        let mut report = solve_linear(problem, &factorization, factor_seconds)?;
-        report.wall_seconds = start.elapsed().as_secs_f64();
-        return Ok(report);
+        return solve_unconstrained(problem);
     };
+    let start = Instant::now();
+    let (factorization, factor_seconds) = factorize_system(problem, Solves::Many)?;
     let m = c.obstacle.len();
     let (lipschitz, s_max) = match options.lipschitz {
         Some(l) => (l, f64::NAN),
@@ -148,36 +142,33 @@ pub fn dual_accelerated(
         Some(l) => l.iter().map(|v| v.max(0.0)).collect(),
         None => vec![0.0; m],
     };
+    let mut monitor = Monitor::new(STAGE, "dual step ‖λ^k − λ^{k−1}‖")
+        .with_stagnation_window(options.stall_window);
     let mut x = primal_solve(&lambda);
-    check_finite(STAGE, 0, "primal iterate", &x)?;
+    monitor.finite(0, "primal iterate", &x)?;
     let mut theta = dual_value(problem, &lambda, &x);
     let (mut y, mut xy, mut t_k) = (lambda.clone(), x.clone(), 1.0f64);
 
-    let mut history = History::for_solver(&EXTRA_COLUMNS);
-    let mut progress = IterationProgress::new(
-        "FISTA",
-        options.max_iter,
-        options.tol,
-        options.show_progress,
-    );
-    let mut measures = KktMeasures::default();
-    let mut stop_reason = "max_iter";
-    let mut iterations = 0;
+    let mut report = ReportBuilder::new("dual-accelerated", start, 0.0, factor_seconds)
+        .with_history(&EXTRA_COLUMNS)
+        .iterating(
+            "FISTA",
+            options.max_iter,
+            options.tol,
+            options.show_progress,
+        );
     let mut restarts = 0usize;
-    let (mut best, mut best_at) = (f64::INFINITY, 0usize);
-    let mut growth = StepGrowth::new();
     for k in 1..=options.max_iter {
-        iterations = k;
         // λ^k = max(0, y − ḡ(x(y))/L)
         let cy = mat_vec(&c.matrix, &xy);
         let new_lambda: Vec<f64> = (0..m)
             .map(|i| (y[i] - step * c.mean_gap(&cy, i)).max(0.0))
             .collect();
-        check_finite(STAGE, k, "multiplier λ", &new_lambda)?;
+        monitor.finite(k, "multiplier λ", &new_lambda)?;
         let new_x = primal_solve(&new_lambda);
-        check_finite(STAGE, k, "primal iterate", &new_x)?;
+        monitor.finite(k, "primal iterate", &new_x)?;
         let cx = mat_vec(&c.matrix, &new_x);
-        measures = kkt_measures(problem, &new_x, &new_lambda, Some(&cx));
+        let measures = kkt_measures(problem, &new_x, &new_lambda, Some(&cx));
         let dual_step = new_lambda
             .iter()
             .zip(&lambda)
@@ -214,35 +205,30 @@ pub fn dual_accelerated(
         lambda = new_lambda;
         x = new_x;
         theta = new_theta;
-        history.push_iteration(
+        report.record(
             k,
             dual_step,
-            &measures,
+            measures,
             &[
                 measures.active as f64,
                 momentum,
                 if restart { 1.0 } else { 0.0 },
             ],
         );
-        progress.update(k, measures.kkt, dual_step);
         if measures.kkt <= options.tol {
-            stop_reason = "kkt";
+            report.stop("kkt");
             break;
         }
-        if measures.kkt < 0.99 * best {
-            (best, best_at) = (measures.kkt, k);
-        }
-        let growth = growth.check(k, dual_step, norm_inf(&lambda));
-        if let Some(reason) = growth.or_else(|| {
-            (!measures.kkt.is_finite()).then(|| "the KKT measure is not finite".to_string())
-        }) {
-            progress.finish();
-            return Err(Error::numerical(
-                STAGE,
-                "dual step ‖λ^k − λ^{k−1}‖",
-                format!(
-                    "diverged at iteration {k}: {reason} (KKT measure {:.3e}); the step 1/L = {step:.4e} is too large ({})",
-                    measures.kkt,
+        let growth = monitor
+            .growth(0, k, dual_step, norm_inf(&lambda))
+            .or_else(|| Monitor::kkt_not_finite(measures.kkt));
+        if let Some(reason) = growth {
+            return Err(monitor.diverged(
+                k,
+                &reason,
+                measures.kkt,
+                &format!(
+                    "the step 1/L = {step:.4e} is too large ({})",
                     if s_max.is_nan() {
                         "L was given".to_string()
                     } else {
@@ -251,42 +237,19 @@ pub fn dual_accelerated(
                 ),
             ));
         }
-        if k - best_at > options.stall_window {
-            progress.finish();
-            return Err(Error::numerical(
-                STAGE,
-                "KKT measure",
-                format!(
-                    "stagnation at iteration {k}: the best KKT measure {best:.3e} (iteration {best_at}) did not improve by 1% over {} iterations (tol {:.1e}): the tolerance is below what the solves resolve",
-                    options.stall_window, options.tol
-                ),
-            ));
-        }
+        monitor.stagnation(k, measures.kkt, options.tol)?;
     }
-    progress.finish();
-    Ok(SolveReport {
-        algorithm: "dual-accelerated".into(),
-        x,
-        lambda,
-        iterations,
-        converged: measures.kkt <= options.tol,
-        stop_reason: stop_reason.into(),
-        measures,
-        history,
-        factor_seconds,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        parameters: [
-            ("tol", options.tol),
-            ("s_max", s_max),
-            ("lipschitz", lipschitz),
-            ("step", step),
-            ("restarts", restarts as f64),
-        ]
-        .into_iter()
-        .filter(|(_, v)| !v.is_nan())
-        .map(|(n, v)| (n.to_string(), v))
-        .collect(),
-    })
+    let parameters: Vec<(&str, f64)> = [
+        ("tol", options.tol),
+        ("s_max", s_max),
+        ("lipschitz", lipschitz),
+        ("step", step),
+        ("restarts", restarts as f64),
+    ]
+    .into_iter()
+    .filter(|(_, v)| !v.is_nan())
+    .collect();
+    Ok(report.finish(x, lambda, named(&parameters)))
 }
 
 /// Θ(λ) = λ·g − ½ (F + Cᵀλ)·x(λ), with x = x(λ) already solved.
@@ -306,32 +269,4 @@ fn dual_value(problem: &ContactProblem, lambda: &[f64], x: &[f64]) -> f64 {
         .map(|(l, g)| l * g)
         .sum::<f64>()
         - 0.5 * load
-}
-
-/// Detects the divergence of a fixed-step iteration from the growth of its
-/// step (the relative KKT measure stays O(1) while a diverging iterate
-/// grows, so it cannot tell).
-pub(crate) struct StepGrowth {
-    min_step: f64,
-}
-
-impl StepGrowth {
-    pub(crate) fn new() -> Self {
-        StepGrowth {
-            min_step: f64::INFINITY,
-        }
-    }
-
-    /// A reason when, from iteration 10 on, the step is 1e4× its smallest
-    /// value so far; steps at round-off level of the iterate (`scale`) are
-    /// ignored, so a converged iteration stagnating at machine precision
-    /// does not count.
-    pub(crate) fn check(&mut self, k: usize, step: f64, scale: f64) -> Option<String> {
-        if !step.is_finite() {
-            return Some("the step is not finite".into());
-        }
-        self.min_step = self.min_step.min(step);
-        (k >= 10 && step > 1e-10 * scale && step > 1e4 * self.min_step)
-            .then(|| format!("the step grew from {:.3e} to {step:.3e}", self.min_step))
-    }
 }

@@ -16,13 +16,22 @@
 pub mod active_set;
 pub mod dual_accelerated;
 pub mod measures;
+mod monitor;
 pub mod spectrum;
 pub mod uzawa;
 pub mod uzawa_split;
 
-use crate::linalg::MatrixKind;
+use crate::error::Result;
+use crate::linalg::{factorize_checked, Factorization, MatrixKind, Solves};
+use crate::progress::IterationProgress;
+use active_set::{active_set, ActiveSetOptions};
+use dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
 use faer::sparse::SparseColMat;
 use serde::Deserialize;
+use spectrum::SpectrumEstimate;
+use std::time::Instant;
+use uzawa::{uzawa, UzawaOptions};
+use uzawa_split::{uzawa_split, UzawaSplitOptions};
 
 pub use measures::{History, KktMeasures};
 
@@ -72,6 +81,54 @@ impl ContactProblem {
     }
 }
 
+/// A method and its parameters: what [`solve`] runs.
+#[derive(Debug, Clone)]
+pub enum SolverOptions {
+    /// The thesis' Uzawa iteration (one factorisation of A, done by [`solve`]).
+    Uzawa(UzawaOptions),
+    UzawaSplit(UzawaSplitOptions),
+    DualAccelerated(DualAcceleratedOptions),
+    ActiveSet(ActiveSetOptions),
+}
+
+/// Solves a contact problem by the method of `options`; a problem without
+/// constraint is one linear solve, whatever the method. `probes` are
+/// recorded per iteration by the methods that take them (Uzawa).
+pub fn solve(
+    problem: &ContactProblem,
+    options: &SolverOptions,
+    probes: &[Probe],
+) -> Result<SolveReport> {
+    if problem.constraint.is_none() {
+        return uzawa::solve_unconstrained(problem);
+    }
+    match options {
+        SolverOptions::Uzawa(o) => {
+            // One factorisation, reused by every iteration.
+            let (factorization, seconds) = factorize_system(problem, Solves::Many)?;
+            uzawa(problem, &factorization, seconds, o, probes)
+        }
+        SolverOptions::UzawaSplit(o) => uzawa_split(problem, o),
+        SolverOptions::DualAccelerated(o) => dual_accelerated(problem, o),
+        SolverOptions::ActiveSet(o) => active_set(problem, o),
+    }
+}
+
+/// The checked factorisation of A, and the seconds it took.
+pub(crate) fn factorize_system(
+    problem: &ContactProblem,
+    solves: Solves,
+) -> Result<(Factorization, f64)> {
+    let t = Instant::now();
+    let factorization = factorize_checked(
+        &problem.matrix,
+        problem.kind,
+        solves,
+        problem.kind.describe(),
+    )?;
+    Ok((factorization, t.elapsed().as_secs_f64()))
+}
+
 /// What a solver returns: the last iterate and how it got there.
 #[derive(Debug, Clone, Default)]
 pub struct SolveReport {
@@ -89,6 +146,11 @@ pub struct SolveReport {
     pub wall_seconds: f64,
     /// Named scalar parameters and estimates (alpha, s_max, ...).
     pub parameters: Vec<(String, f64)>,
+    /// Uzawa's fixed step α (None for the other methods: their steps are
+    /// among the `parameters`).
+    pub alpha: Option<f64>,
+    /// The Lanczos estimate Uzawa's α was chosen from (and judged against).
+    pub spectrum: Option<SpectrumEstimate>,
 }
 
 impl SolveReport {
@@ -101,22 +163,135 @@ impl SolveReport {
     }
 }
 
-/// An error naming the stage, the quantity and the iteration when `v` holds
-/// a non-finite value (divergence, a singular solve).
-pub(crate) fn check_finite(
-    stage: &str,
-    iteration: usize,
-    what: &str,
-    v: &[f64],
-) -> crate::error::Result<()> {
-    match crate::linalg::first_non_finite(v) {
-        None => Ok(()),
-        Some(i) => Err(crate::error::Error::numerical(
-            stage,
-            what,
-            format!("non-finite value at index {i} in iteration {iteration}"),
-        )),
+/// The stop reason of the one direct solve of a problem without contact.
+const LINEAR: &str = "linear";
+
+/// The bookkeeping every method shares from its start to its
+/// [`SolveReport`] (the one place a report is built): the clock, the
+/// per-iteration history and progress display, the last measures and why
+/// the iteration stopped.
+pub(crate) struct ReportBuilder {
+    algorithm: &'static str,
+    clock: Instant,
+    /// Seconds spent before `clock` started that count as the solver's
+    /// (Uzawa's factorisation, done before its step is chosen).
+    offset: f64,
+    tol: f64,
+    progress: IterationProgress,
+    history: History,
+    stop_reason: &'static str,
+    pub iterations: usize,
+    pub measures: KktMeasures,
+    pub factor_seconds: f64,
+    pub alpha: Option<f64>,
+    pub spectrum: Option<SpectrumEstimate>,
+}
+
+impl ReportBuilder {
+    /// A run of `algorithm` timed from `clock`, plus `offset` seconds spent
+    /// before it; `factor_seconds` of the time so far factorised. Until
+    /// [`ReportBuilder::stop`] its stop reason is "max_iter".
+    pub(crate) fn new(
+        algorithm: &'static str,
+        clock: Instant,
+        offset: f64,
+        factor_seconds: f64,
+    ) -> Self {
+        ReportBuilder {
+            algorithm,
+            clock,
+            offset,
+            tol: f64::INFINITY,
+            progress: IterationProgress::new(algorithm, 1, 0.0, false),
+            history: History::default(),
+            stop_reason: "max_iter",
+            iterations: 0,
+            measures: KktMeasures::default(),
+            factor_seconds,
+            alpha: None,
+            spectrum: None,
+        }
     }
+
+    /// The history of an iterative method: the KKT columns, then its own.
+    pub(crate) fn with_history(mut self, extra_columns: &[&str]) -> Self {
+        self.history = History::for_solver(extra_columns);
+        self
+    }
+
+    /// At most `max_iter` iterations to the KKT tolerance `tol`, shown as
+    /// `label` on the progress display when `show_progress`.
+    pub(crate) fn iterating(
+        mut self,
+        label: &str,
+        max_iter: usize,
+        tol: f64,
+        show_progress: bool,
+    ) -> Self {
+        self.tol = tol;
+        self.progress = IterationProgress::new(label, max_iter, tol, show_progress);
+        self
+    }
+
+    /// The one linear solve of a problem without constraint (no history),
+    /// after a factorisation of `factor_seconds`.
+    pub(crate) fn linear(factor_seconds: f64) -> Self {
+        let mut b = ReportBuilder::new(LINEAR, Instant::now(), factor_seconds, factor_seconds);
+        b.stop_reason = LINEAR;
+        b.iterations = 1;
+        b
+    }
+
+    /// Records iteration k: its dual step, measures and the method's own
+    /// history values; updates the progress display.
+    pub(crate) fn record(
+        &mut self,
+        k: usize,
+        dual_step: f64,
+        measures: KktMeasures,
+        extra: &[f64],
+    ) {
+        self.iterations = k;
+        self.measures = measures;
+        self.history.push_iteration(k, dual_step, &measures, extra);
+        self.progress.update(k, measures.kkt, dual_step);
+    }
+
+    /// The iteration stopped for `reason` ("kkt", "thesis").
+    pub(crate) fn stop(&mut self, reason: &'static str) {
+        self.stop_reason = reason;
+    }
+
+    /// The report of the last iterate (x, λ); converged when its KKT
+    /// measure is below `tol` (or for the direct solve without contact).
+    pub(crate) fn finish(
+        mut self,
+        x: Vec<f64>,
+        lambda: Vec<f64>,
+        parameters: Vec<(String, f64)>,
+    ) -> SolveReport {
+        self.progress.finish();
+        SolveReport {
+            algorithm: self.algorithm.into(),
+            x,
+            lambda,
+            iterations: self.iterations,
+            converged: self.stop_reason == LINEAR || self.measures.kkt <= self.tol,
+            stop_reason: self.stop_reason.into(),
+            measures: self.measures,
+            history: self.history,
+            factor_seconds: self.factor_seconds,
+            wall_seconds: self.offset + self.clock.elapsed().as_secs_f64(),
+            parameters,
+            alpha: self.alpha,
+            spectrum: self.spectrum,
+        }
+    }
+}
+
+/// Named parameters of a report from (name, value) pairs.
+pub(crate) fn named(values: &[(&str, f64)]) -> Vec<(String, f64)> {
+    values.iter().map(|(n, v)| (n.to_string(), *v)).collect()
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]

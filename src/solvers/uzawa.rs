@@ -10,20 +10,50 @@
 //! (penetration ḡ < 0 raises λ). The reported iterate after k iterations is
 //! (x^k, λ^k), and its KKT measures are computed honestly for that pair.
 
-use super::check_finite;
-use super::measures::{dual_step_norm, kkt_measures, History};
-use super::spectrum::estimate_dual_spectrum;
-use super::{ContactProblem, SolveReport};
+use super::measures::{dual_step_norm, kkt_measures};
+use super::monitor::{check_finite, Monitor};
+use super::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
+use super::{factorize_system, named, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::Factorization;
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
-use crate::progress::IterationProgress;
+use crate::linalg::{Factorization, Solves};
 use crate::solvers::{DualNorm, Probe, StepForm, StopRule};
 use std::time::Instant;
 
+/// How Uzawa's fixed step α is chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum UzawaStep {
+    /// A given α.
+    Given(f64),
+    /// 2/(s_max + s_min), the optimal fixed Richardson step, capped at 95%
+    /// of the stability bound 2/s_max; 1 without an estimate.
+    Auto,
+    /// factor × 2/s_max: a multiple of the stability bound (the hard cases).
+    StabilityFactor(f64),
+}
+
+impl UzawaStep {
+    /// α from the Lanczos estimate of the spectrum of S; None for a
+    /// multiple of 2/s_max without an estimate (no constraint rows).
+    pub fn alpha(self, spectrum: Option<SpectrumEstimate>) -> Option<f64> {
+        match (self, spectrum) {
+            (UzawaStep::Given(a), _) => Some(a),
+            (UzawaStep::Auto, Some(s)) => Some((2.0 / (s.s_max + s.s_min)).min(1.9 / s.s_max)),
+            (UzawaStep::Auto, None) => Some(1.0),
+            (UzawaStep::StabilityFactor(factor), Some(s)) => Some(factor * 2.0 / s.s_max),
+            (UzawaStep::StabilityFactor(_), None) => None,
+        }
+    }
+}
+
+/// Lanczos steps of the estimate α is chosen from and judged against.
+pub const LANCZOS_STEPS: usize = 50;
+
+const STAGE: &str = "Uzawa";
+
 #[derive(Debug, Clone)]
 pub struct UzawaOptions {
-    pub alpha: f64,
+    pub step: UzawaStep,
     pub step_form: StepForm,
     pub max_iter: usize,
     /// Bound on the relative KKT measure.
@@ -34,32 +64,58 @@ pub struct UzawaOptions {
     pub show_progress: bool,
 }
 
+/// α by `step`, and the Lanczos estimate of the spectrum of S it comes from
+/// (made for every rule, with the one factorisation of A: the report
+/// records it and divergence is judged against it).
+pub fn uzawa_alpha(
+    problem: &ContactProblem,
+    factorization: &Factorization,
+    step: UzawaStep,
+    step_form: StepForm,
+) -> Result<(f64, Option<SpectrumEstimate>)> {
+    let spectrum = estimate_dual_spectrum(problem, factorization, step_form, LANCZOS_STEPS);
+    let alpha = step.alpha(spectrum).ok_or_else(|| {
+        Error::numerical(
+            STAGE,
+            "α = factor × 2/s_max",
+            "no estimate of s_max (no constraint rows): give α instead",
+        )
+    })?;
+    Ok((alpha, spectrum))
+}
+
+/// [`uzawa_alpha`] for a problem not factorised yet (the FreeFEM twin's α).
+pub fn uzawa_alpha_of(
+    problem: &ContactProblem,
+    step: UzawaStep,
+    step_form: StepForm,
+) -> Result<f64> {
+    let (factorization, _) = factorize_system(problem, Solves::Many)?;
+    Ok(uzawa_alpha(problem, &factorization, step, step_form)?.0)
+}
+
 /// One linear solve: the problem without contact.
 pub fn solve_linear(
     problem: &ContactProblem,
     factorization: &Factorization,
     factor_seconds: f64,
 ) -> Result<SolveReport> {
-    let start = Instant::now();
+    let mut report = ReportBuilder::linear(factor_seconds);
     let mut x = problem.rhs.clone();
     factorization.solve_in_place(&mut x);
     check_finite("linear solve", 1, "solution", &x)?;
-    let measures = kkt_measures(problem, &x, &[], None);
-    Ok(SolveReport {
-        algorithm: "linear".into(),
-        x,
-        lambda: vec![],
-        iterations: 1,
-        converged: true,
-        stop_reason: "linear".into(),
-        measures,
-        history: History::default(),
-        factor_seconds,
-        wall_seconds: factor_seconds + start.elapsed().as_secs_f64(),
-        parameters: vec![],
-    })
+    report.measures = kkt_measures(problem, &x, &[], None);
+    Ok(report.finish(x, vec![], vec![]))
 }
 
+/// The problem without contact factorised and solved once.
+pub fn solve_unconstrained(problem: &ContactProblem) -> Result<SolveReport> {
+    let (factorization, seconds) = factorize_system(problem, Solves::Few)?;
+    solve_linear(problem, &factorization, seconds)
+}
+
+/// Uzawa with the one factorisation of A (`factor_seconds` spent on it):
+/// chooses α ([`uzawa_alpha`]), then iterates (module docs).
 pub fn uzawa(
     problem: &ContactProblem,
     factorization: &Factorization,
@@ -67,7 +123,7 @@ pub fn uzawa(
     options: &UzawaOptions,
     probes: &[Probe],
 ) -> Result<SolveReport> {
-    let start = Instant::now();
+    let (alpha, spectrum) = uzawa_alpha(problem, factorization, options.step, options.step_form)?;
     let c = problem
         .constraint
         .as_ref()
@@ -78,57 +134,57 @@ pub fn uzawa(
         StepForm::Integral => c.weights.clone(),
     };
     let probe_names: Vec<&str> = probes.iter().map(|p| p.name.as_str()).collect();
-    let mut history = History::for_solver(&probe_names);
+    let mut report = ReportBuilder::new("uzawa", Instant::now(), factor_seconds, factor_seconds)
+        .with_history(&probe_names)
+        .iterating(STAGE, options.max_iter, options.tol, options.show_progress);
+    report.alpha = Some(alpha);
+    report.spectrum = spectrum;
     let mut lambda = vec![0.0; m];
     let mut x = vec![0.0; problem.n()];
-    let mut measures = Default::default();
-    let mut stop_reason = "max_iter";
-    let mut divergence = DivergenceMonitor::default();
-    // 2/s_max from a Lanczos estimate, computed once and only when needed.
-    let mut bound: Option<Option<f64>> = None;
-    let mut progress = IterationProgress::new(
-        "Uzawa",
-        options.max_iter,
-        options.tol,
-        options.show_progress,
-    );
-    let mut iterations = 0;
+    let mut monitor =
+        Monitor::new(STAGE, "dual step ‖λ^k − λ^{k−1}‖").with_cycle_window(CYCLE_WINDOW);
+    // The stability bound 2/s_max of the fixed-step iteration. The Ritz
+    // value s_max^(k) is a lower bound on s_max, so α > 2/s_max^(k) proves
+    // α > 2/s_max.
+    let bound = spectrum
+        .map(|s| 2.0 / s.s_max)
+        .filter(|b| b.is_finite() && *b > 0.0);
     for k in 1..=options.max_iter {
-        iterations = k;
         // x^k = A⁻¹ (F + Cᵀ λ^{k−1})
         x = mat_t_vec(&c.matrix, &lambda);
         x.iter_mut()
             .zip(&problem.rhs)
             .for_each(|(xi, fi)| *xi += fi);
         factorization.solve_in_place(&mut x);
-        check_finite("Uzawa", k, "primal iterate", &x)?;
+        monitor.finite(k, "primal iterate", &x)?;
         // λ^k = max(0, λ^{k−1} − α D ḡ(x^k))
         let cx = mat_vec(&c.matrix, &x);
         let new_lambda: Vec<f64> = (0..m)
             .map(|i| {
                 let mean_gap = c.mean_gap(&cx, i);
-                (lambda[i] - options.alpha * step_weights[i] * mean_gap).max(0.0)
+                (lambda[i] - alpha * step_weights[i] * mean_gap).max(0.0)
             })
             .collect();
-        check_finite("Uzawa", k, "multiplier λ", &new_lambda)?;
+        monitor.finite(k, "multiplier λ", &new_lambda)?;
         let step = dual_step_norm(&new_lambda, &lambda, &c.weights, options.dual_norm);
         lambda = new_lambda;
-        measures = kkt_measures(problem, &x, &lambda, Some(&cx));
+        let measures = kkt_measures(problem, &x, &lambda, Some(&cx));
         let probe_values: Vec<f64> = probes.iter().map(|p| (p.evaluate)(&x, &lambda)).collect();
-        history.push_iteration(k, step, &measures, &probe_values);
-        progress.update(k, measures.kkt, step);
+        report.record(k, step, measures, &probe_values);
 
-        let mut verdict = divergence.check(k, step, measures.kkt, norm_inf(&lambda));
-        let stalled = divergence.stalled(k, step, norm_inf(&lambda));
+        let lambda_max = norm_inf(&lambda);
+        let mut verdict = monitor
+            .growth(0, k, step, lambda_max)
+            .or_else(|| monitor.cycles(step, lambda_max, measures.kkt));
+        let stalled = monitor.stalled(STALL_WINDOW, k, step, lambda_max);
         let unconverged_end = k == options.max_iter && measures.kkt > options.tol;
         if verdict.is_none() && (stalled || unconverged_end) {
-            // Judged against the bounds (see `DivergenceMonitor`): α above
+            // Judged against the bounds (see `STALL_WINDOW`): α above
             // 2/s_max of S and of S restricted to the current active set.
-            let full = *bound.get_or_insert_with(|| lanczos_bound(problem, factorization, options));
-            if let Some(b) = full.filter(|b| options.alpha > *b) {
-                let (active, b_active) = active_set_bound(problem, factorization, options, &lambda);
-                if b_active.is_some_and(|ba| options.alpha > ba) {
-                    let ba = b_active.expect("checked");
+            if let Some(b) = bound.filter(|b| alpha > *b) {
+                let (active, b_active) =
+                    active_set_bound(problem, factorization, options.step_form, &lambda);
+                if let Some(ba) = b_active.filter(|ba| alpha > *ba) {
                     let behaviour = if stalled {
                         format!(
                             "the step ({step:.3e}) has not decreased over the last {} iterations",
@@ -142,25 +198,21 @@ pub fn uzawa(
                     };
                     verdict = Some(format!(
                         "α = {:.4} × the stability bound 2/s_max and {:.4} × the bound 2/s_max(S_AA) ≈ {ba:.4e} of the {active} active multipliers, so the iteration cannot settle on this active set; {behaviour}",
-                        options.alpha / b,
-                        options.alpha / ba,
+                        alpha / b,
+                        alpha / ba,
                     ));
                 }
             }
         }
         if let Some(reason) = verdict {
-            progress.finish();
             let bound = bound
-                .get_or_insert_with(|| lanczos_bound(problem, factorization, options))
                 .map(|b| format!("; the stability bound 2/s_max ≈ {b:.4e} (Lanczos)"))
                 .unwrap_or_default();
-            return Err(Error::numerical(
-                "Uzawa",
-                "dual step ‖λ^k − λ^{k−1}‖",
-                format!(
-                    "diverged at iteration {k}: {reason} (KKT measure {:.3e}); α = {} is too large{bound}",
-                    measures.kkt, options.alpha
-                ),
+            return Err(monitor.diverged(
+                k,
+                &reason,
+                measures.kkt,
+                &format!("α = {alpha} is too large{bound}"),
             ));
         }
         let done = match options.stop {
@@ -168,40 +220,14 @@ pub fn uzawa(
             StopRule::Thesis => step < options.thesis_tol,
         };
         if done {
-            stop_reason = match options.stop {
+            report.stop(match options.stop {
                 StopRule::Kkt => "kkt",
                 StopRule::Thesis => "thesis",
-            };
+            });
             break;
         }
     }
-    progress.finish();
-    Ok(SolveReport {
-        algorithm: "uzawa".into(),
-        x,
-        lambda,
-        iterations,
-        converged: measures.kkt <= options.tol,
-        stop_reason: stop_reason.into(),
-        measures,
-        history,
-        factor_seconds,
-        wall_seconds: factor_seconds + start.elapsed().as_secs_f64(),
-        parameters: vec![("alpha".into(), options.alpha)],
-    })
-}
-
-/// The stability bound 2/s_max of the fixed-step iteration, from 50 Lanczos
-/// steps (the pipeline's estimate). The Ritz value s_max^(k) is a lower bound
-/// on s_max, so α > 2/s_max^(k) proves α > 2/s_max.
-fn lanczos_bound(
-    problem: &ContactProblem,
-    factorization: &Factorization,
-    options: &UzawaOptions,
-) -> Option<f64> {
-    estimate_dual_spectrum(problem, factorization, options.step_form, 50)
-        .map(|s| 2.0 / s.s_max)
-        .filter(|b| b.is_finite() && *b > 0.0)
+    Ok(report.finish(x, lambda, named(&[("alpha", alpha)])))
 }
 
 /// The bound 2/s_max(S_AA) of S restricted to the active multipliers
@@ -213,7 +239,7 @@ fn lanczos_bound(
 fn active_set_bound(
     problem: &ContactProblem,
     factorization: &Factorization,
-    options: &UzawaOptions,
+    step_form: StepForm,
     lambda: &[f64],
 ) -> (usize, Option<f64>) {
     let c = problem.constraint.as_ref().expect("a constraint");
@@ -222,7 +248,7 @@ fn active_set_bound(
     if n_active == 0 {
         return (0, None);
     }
-    let scale: Vec<f64> = match options.step_form {
+    let scale: Vec<f64> = match step_form {
         StepForm::Mean => c.weights.iter().map(|w| 1.0 / w.sqrt()).collect(),
         StepForm::Integral => vec![1.0; lambda.len()],
     };
@@ -262,18 +288,18 @@ fn active_set_bound(
     )
 }
 
-/// Detects the ways a fixed-step projected iteration fails when α is above
-/// the stability bound 2/s_max:
+/// How Uzawa's run is judged divergent (the tests of [`Monitor`]) when α is
+/// above the stability bound 2/s_max:
 ///
 /// * geometric growth of the step (by 10⁴ over its smallest value), or a
 ///   bounded cycle in which neither the step nor the KKT measure decreases
-///   over 100 iterations ([`DivergenceMonitor::check`], any α);
+///   over 100 iterations ([`Monitor::growth`], [`Monitor::cycles`], any α);
 /// * just above the bound (α = 1.01 × 2/s_max) the unstable mode grows by
 ///   only |1 − α s_max| ≈ 1.02 per iteration and the projection onto λ ≥ 0
 ///   clips it, so neither test above need fire. There the iteration is judged
 ///   against two bounds once the step stops contracting (the largest step of
 ///   the last [`STALL_WINDOW`] iterations is not below the largest of the
-///   window before, [`DivergenceMonitor::stalled`]), or when max_iter is
+///   window before, [`Monitor::stalled`]), or when max_iter is
 ///   reached unconverged: the run is reported divergent when α exceeds both
 ///   2/s_max (Lanczos) and 2/s_max(S_AA), S restricted to the current active
 ///   set (power iteration). Both estimates are lower bounds on the
@@ -284,71 +310,9 @@ fn active_set_bound(
 ///   error on it evolves by I − α S_AA, which grows when α s_max(S_AA) > 2.
 ///   Below the bounds these tests never report (slow convergence is not
 ///   divergence).
-#[derive(Default)]
-struct DivergenceMonitor {
-    min_step: f64,
-    log_steps: Vec<f64>,
-    log_kkt: Vec<f64>,
-    steps: Vec<f64>,
-}
-
-/// Window (iterations) of the stall test.
+///
+/// `STALL_WINDOW` is the window (iterations) of the stall test.
 const STALL_WINDOW: usize = 25;
 
 /// Window (iterations) over which a cycle is judged.
 const CYCLE_WINDOW: usize = 50;
-
-impl DivergenceMonitor {
-    /// True every [`STALL_WINDOW`] iterations (from 3 windows on) when the
-    /// largest step of the last window is not below the largest step of the
-    /// window before it, and the step is well above round-off.
-    fn stalled(&mut self, k: usize, step: f64, lambda_max: f64) -> bool {
-        self.steps.push(step);
-        let n = self.steps.len();
-        if !k.is_multiple_of(STALL_WINDOW) || n < 3 * STALL_WINDOW || step <= 1e-10 * lambda_max {
-            return false;
-        }
-        let max = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(*x));
-        let last = max(&self.steps[n - STALL_WINDOW..]);
-        let before = max(&self.steps[n - 2 * STALL_WINDOW..n - STALL_WINDOW]);
-        last >= before
-    }
-
-    fn check(&mut self, k: usize, step: f64, kkt: f64, lambda_max: f64) -> Option<String> {
-        if k == 1 {
-            self.min_step = f64::INFINITY;
-        }
-        self.min_step = self.min_step.min(step);
-        // Well above round-off: a converged iteration stagnating at machine
-        // precision must not look like a cycle.
-        let significant = step > 1e-10 * lambda_max;
-        if k >= 10 && significant && step > 1e4 * self.min_step {
-            return Some(format!(
-                "the step grew from {:.3e} to {step:.3e}",
-                self.min_step
-            ));
-        }
-        self.log_steps.push(step.max(f64::MIN_POSITIVE).ln());
-        self.log_kkt.push(kkt.max(f64::MIN_POSITIVE).ln());
-        let n = self.log_steps.len();
-        if n < 2 * CYCLE_WINDOW || !significant {
-            return None;
-        }
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-        let window = |v: &[f64]| {
-            (
-                mean(&v[n - 2 * CYCLE_WINDOW..n - CYCLE_WINDOW]),
-                mean(&v[n - CYCLE_WINDOW..]),
-            )
-        };
-        let ((s0, s1), (k0, k1)) = (window(&self.log_steps), window(&self.log_kkt));
-        // Any real convergence, however slow, lowers both means.
-        (s1 - s0 > -1e-9 && k1 - k0 > -1e-9).then(|| {
-            format!(
-                "the iteration cycles without converging: over the last {} iterations neither the step ({:.3e}) nor the KKT measure decreased",
-                2 * CYCLE_WINDOW,
-                step
-            )
-        })
-    }
-}

@@ -51,15 +51,13 @@
 //! Stops on the relative KKT measure only; errors on non-finite values,
 //! divergence and stagnation (as [`super::dual_accelerated`]).
 
-use super::check_finite;
-use super::dual_accelerated::StepGrowth;
-use super::measures::{kkt_measures, History, KktMeasures};
+use super::measures::kkt_measures;
+use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
-use super::{Constraint, ContactProblem, SolveReport};
+use super::{Constraint, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{factorize_checked, MatrixKind, Solves};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
-use crate::progress::IterationProgress;
 use crate::solvers::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
 use std::time::Instant;
@@ -138,44 +136,11 @@ fn block(
         .expect("indices inside the block")
 }
 
-/// Detects the bounded cycle of a fixed-step projected iteration above its
-/// stability bound, when the projection onto λ ≥ 0 clips the growth (as
-/// Uzawa's monitor does): over two consecutive windows of
-/// [`CYCLE_WINDOW`] iterations neither the mean log step nor the mean log
-/// KKT measure decreased. Any convergence, however slow, lowers both.
-#[derive(Default)]
-struct CycleMonitor {
-    log_steps: Vec<f64>,
-    log_kkt: Vec<f64>,
-}
-
 /// Long enough not to take the slow phases of a stable iteration for a
 /// cycle: on the 32×32 shell at the joint step (θ = 1.8) the KKT measure
 /// falls by only 17% between iterations 2000 and 2500, and windows of 50
 /// called that a cycle.
 const CYCLE_WINDOW: usize = 250;
-
-impl CycleMonitor {
-    fn check(&mut self, step: f64, scale: f64, kkt: f64) -> Option<String> {
-        self.log_steps.push(step.max(f64::MIN_POSITIVE).ln());
-        self.log_kkt.push(kkt.max(f64::MIN_POSITIVE).ln());
-        let n = self.log_steps.len();
-        // Steps at round-off level of the iterate are convergence, not a cycle.
-        if n < 2 * CYCLE_WINDOW || step <= 1e-10 * scale {
-            return None;
-        }
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-        let change = |v: &[f64]| {
-            mean(&v[n - CYCLE_WINDOW..]) - mean(&v[n - 2 * CYCLE_WINDOW..n - CYCLE_WINDOW])
-        };
-        (change(&self.log_steps) > -1e-9 && change(&self.log_kkt) > -1e-9).then(|| {
-            format!(
-                "the iteration cycles: over the last {} iterations neither the step ({step:.3e}) nor the KKT measure ({kkt:.3e}) decreased",
-                2 * CYCLE_WINDOW
-            )
-        })
-    }
-}
 
 /// The rows of `a` followed by the rows of `b` (same number of columns).
 fn stack_rows(
@@ -364,21 +329,19 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     let mut psi = vec![0.0; n_psi];
     let mut lambda = vec![0.0; m];
     let mut x = vec![0.0; n];
-    let mut history = History::for_solver(&EXTRA_COLUMNS);
-    let mut progress = IterationProgress::new(
-        "Uzawa split",
-        options.max_iter,
-        options.tol,
-        options.show_progress,
-    );
-    let mut measures = KktMeasures::default();
-    let mut stop_reason = "max_iter";
-    let mut iterations = 0;
-    let (mut best, mut best_at) = (f64::INFINITY, 0usize);
-    let (mut lambda_growth, mut psi_growth) = (StepGrowth::new(), StepGrowth::new());
-    let mut cycle = CycleMonitor::default();
+    let mut report = ReportBuilder::new("uzawa-split", start, 0.0, factor_seconds)
+        .with_history(&EXTRA_COLUMNS)
+        .iterating(
+            "Uzawa split",
+            options.max_iter,
+            options.tol,
+            options.show_progress,
+        );
+    // Watched steps: 0 is λ's, 1 is ψ's.
+    let mut monitor = Monitor::new(STAGE, "multiplier steps")
+        .with_cycle_window(CYCLE_WINDOW)
+        .with_stagnation_window(options.stall_window);
     for k in 1..=options.max_iter {
-        iterations = k;
         // K U = F_U − Bᵀψ + Cᵀλ
         let mut u = mat_vec(&bt_block, &psi);
         u.iter_mut().zip(f_u).for_each(|(ui, fi)| *ui = fi - *ui);
@@ -387,7 +350,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             u.iter_mut().zip(&ct).for_each(|(ui, ci)| *ui += ci);
         }
         factorization.solve_in_place(&mut u);
-        check_finite(STAGE, k, "primal iterate U", &u)?;
+        monitor.finite(k, "primal iterate U", &u)?;
         // ψ ← ψ + β R⁻¹ (B U − F_ψ)
         let bu = mat_vec(&b_block, &u);
         let mut psi_step = 0.0f64;
@@ -396,7 +359,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             psi[i] += d;
             psi_step = psi_step.max(d.abs());
         }
-        check_finite(STAGE, k, "multiplier ψ", &psi)?;
+        monitor.finite(k, "multiplier ψ", &psi)?;
         // λ ← max(0, λ − α ḡ(U))
         let mut dual_step = 0.0f64;
         if let Some(c) = &c_u {
@@ -406,47 +369,40 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
                 dual_step = dual_step.max((new - lambda[i]).abs());
                 lambda[i] = new;
             }
-            check_finite(STAGE, k, "multiplier λ", &lambda)?;
+            monitor.finite(k, "multiplier λ", &lambda)?;
         }
         x[..np].copy_from_slice(&u);
         x[np..].copy_from_slice(&psi);
-        measures = kkt_measures(problem, &x, &lambda, None);
-        history.push_iteration(k, dual_step, &measures, &[measures.active as f64, psi_step]);
-        progress.update(k, measures.kkt, dual_step);
+        let measures = kkt_measures(problem, &x, &lambda, None);
+        report.record(k, dual_step, measures, &[measures.active as f64, psi_step]);
         if measures.kkt <= options.tol {
-            stop_reason = "kkt";
+            report.stop("kkt");
             break;
         }
-        if measures.kkt < 0.99 * best {
-            (best, best_at) = (measures.kkt, k);
-        }
-        let growth = lambda_growth
-            .check(k, dual_step, norm_inf(&lambda))
+        let growth = monitor
+            .growth(0, k, dual_step, norm_inf(&lambda))
             .map(|r| format!("λ: {r}"))
             .or_else(|| {
-                psi_growth
-                    .check(k, psi_step, norm_inf(&psi))
+                monitor
+                    .growth(1, k, psi_step, norm_inf(&psi))
                     .map(|r| format!("ψ: {r}"))
             })
+            .or_else(|| Monitor::kkt_not_finite(measures.kkt))
             .or_else(|| {
-                (!measures.kkt.is_finite()).then(|| "the KKT measure is not finite".to_string())
+                let (step, scale) = if m > 0 {
+                    (dual_step, norm_inf(&lambda))
+                } else {
+                    (psi_step, norm_inf(&psi))
+                };
+                monitor.cycles(step, scale, measures.kkt)
             });
-        let growth = growth.or_else(|| {
-            let (step, scale) = if m > 0 {
-                (dual_step, norm_inf(&lambda))
-            } else {
-                (psi_step, norm_inf(&psi))
-            };
-            cycle.check(step, scale, measures.kkt)
-        });
         if let Some(reason) = growth {
-            progress.finish();
-            return Err(Error::numerical(
-                STAGE,
-                "multiplier steps",
-                format!(
-                    "diverged at iteration {k}: {reason} (KKT measure {:.3e}); α = {alpha:.4e}, β = {beta:.4e} are too large: {}",
-                    measures.kkt,
+            return Err(monitor.diverged(
+                k,
+                &reason,
+                measures.kkt,
+                &format!(
+                    "α = {alpha:.4e}, β = {beta:.4e} are too large: {}",
                     match joint_mu {
                         // The joint rule exceeds Weyl's bound by design.
                         Some(mu) => format!(
@@ -460,19 +416,8 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
                 ),
             ));
         }
-        if k - best_at > options.stall_window {
-            progress.finish();
-            return Err(Error::numerical(
-                STAGE,
-                "KKT measure",
-                format!(
-                    "stagnation at iteration {k}: the best KKT measure {best:.3e} (iteration {best_at}) did not improve by 1% over {} iterations (tol {:.1e})",
-                    options.stall_window, options.tol
-                ),
-            ));
-        }
+        monitor.stagnation(k, measures.kkt, options.tol)?;
     }
-    progress.finish();
     let mut parameters = vec![
         ("tol".into(), options.tol),
         ("alpha".into(), alpha),
@@ -493,17 +438,5 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     if let Some(mu) = joint_mu {
         parameters.push(("joint_mu".into(), mu));
     }
-    Ok(SolveReport {
-        algorithm: "uzawa-split".into(),
-        x,
-        lambda,
-        iterations,
-        converged: measures.kkt <= options.tol,
-        stop_reason: stop_reason.into(),
-        measures,
-        history,
-        factor_seconds,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        parameters,
-    })
+    Ok(report.finish(x, lambda, parameters))
 }
