@@ -186,3 +186,10 @@ shell-benchmarks: build
 .PHONY: hard-psri
 hard-psri: build
 	-$(BIN) hard pipelines/scenes/hard --set '*:element=p2b-psri' --set mesh-large:mesh.n=$(HARD_LARGE_N) --out-dir $(BUILD)/hard-psri
+
+.PHONY: paraview
+# Issue 15: the deformed thesis shell in 3D, rendered by ParaView itself
+# (Debian's paraview: pvbatch; xvfb for its OpenGL context).
+paraview: naghdi
+	mkdir -p $(BUILD)/paraview
+	xvfb-run -a pvbatch pipelines/paraview/render_shell.py $(BUILD)/results/naghdi-hypar.xdmf $(BUILD)/paraview/naghdi-hypar.png

@@ -4,7 +4,8 @@
 # files), pkg-config and a C toolchain (for the hdf5 crate).
 # Uses sudo when not root. Rust (cargo ≥ 1.85) must already be installed.
 set -euo pipefail
-packages=(gmsh freefem++ libfreefem++ libhdf5-dev hdf5-tools pkg-config build-essential)
+packages=(gmsh freefem++ libfreefem++ libhdf5-dev hdf5-tools pkg-config build-essential
+          paraview python3-paraview xvfb xauth)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

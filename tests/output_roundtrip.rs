@@ -138,6 +138,7 @@ fn sample_data(mesh: &Mesh) -> ResultData {
             ("refinements".into(), AttrValue::I64(2)),
         ],
         scene_text: "# obstacle-disk — λ ≥ 0\n[model]\nkind = \"membrane\"\nalpha = 11.5\n".into(),
+        surface: None,
     }
 }
 
@@ -224,6 +225,7 @@ fn without_edges_and_empty_parts() {
         history: vec![("r".into(), vec![])],
         root_attrs: vec![],
         scene_text: String::new(),
+        surface: None,
     };
     write_result(&path, &mesh, &data).unwrap();
     let back = read_result(&path).unwrap();
@@ -606,6 +608,63 @@ fn dims_after(xdmf: &str, marker: &str) -> String {
     let d = rest.find("Dimensions=\"").unwrap() + "Dimensions=\"".len();
     let end = rest[d..].find('"').unwrap();
     rest[d..d + end].to_string()
+}
+
+/// A shell's result: `/mesh/surface` round-trips, the main XDMF describes the
+/// 3D surface (XYZ) and `FILE.domain.xdmf` the flat parameter domain; a
+/// surface of the wrong length or with a NaN is refused before writing.
+#[test]
+fn shell_surface_in_3d_and_its_parameter_domain() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("shell.h5");
+    let mesh = square_mesh();
+    let surface: Vec<[f64; 3]> = mesh
+        .vertices
+        .iter()
+        .map(|p| [p[0], p[1], p[0] * p[0] - p[1] * p[1] + 1.4])
+        .collect();
+    let data = ResultData {
+        surface: Some(surface.clone()),
+        ..sample_data(&mesh)
+    };
+    write_result(&path, &mesh, &data).unwrap();
+    let back = read_result(&path).unwrap();
+    assert_eq!(back.data.surface.as_deref(), Some(&surface[..]));
+    assert_eq!(back.data, data);
+    let main = std::fs::read_to_string(dir.path().join("shell.xdmf")).unwrap();
+    assert!(main.contains("GeometryType=\"XYZ\""), "{main}");
+    assert_eq!(dims_after(&main, "<Geometry"), "9 3");
+    assert!(main.contains(">shell.h5:/mesh/surface<"), "{main}");
+    let flat = std::fs::read_to_string(dir.path().join("shell.domain.xdmf")).unwrap();
+    assert!(flat.contains("GeometryType=\"XY\""), "{flat}");
+    assert_eq!(dims_after(&flat, "<Geometry"), "9 2");
+    assert!(flat.contains(">shell.h5:/fields/r<"), "{flat}");
+    // Refused, nothing written.
+    for (bad, why) in [
+        (surface[..8].to_vec(), "8 points"),
+        (
+            {
+                let mut s = surface.clone();
+                s[4][2] = f64::NAN;
+                s
+            },
+            "surface",
+        ),
+    ] {
+        let target = dir.path().join("bad.h5");
+        let err = write_result(
+            &target,
+            &mesh,
+            &ResultData {
+                surface: Some(bad),
+                ..sample_data(&mesh)
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("/mesh/surface") && err.contains(why), "{err}");
+        assert!(!target.exists() && !dir.path().join("bad.domain.xdmf").exists());
+    }
 }
 
 #[test]

@@ -274,6 +274,8 @@ fn result_bytes() -> Vec<u8> {
         dofs: vec![("u".into(), (0..nv + nt).map(|i| i as f64 * 0.1).collect())],
         dof_spaces: vec![("u".into(), "P1b".into())],
         write_edges: false,
+        // A shell's 3D surface, so that corruptions reach its reader too.
+        surface: Some(mesh.vertices.iter().map(|p| [p[0], p[1], 0.5]).collect()),
         solver_attrs: vec![
             ("algorithm".into(), AttrValue::Str("uzawa".into())),
             ("iterations".into(), AttrValue::I64(3)),

@@ -6,6 +6,7 @@
 //! /mesh/vertices        f64 [Nv, 2]
 //! /mesh/triangles       u64 [Nt, 3]      zero-based, mesh order
 //! /mesh/edges           u64 [Ne, 2]      only when ResultData::write_edges
+//! /mesh/surface         f64 [Nv, 3]      shells: the midsurface point φ(x) of each vertex
 //! /fields/<name>        f64 [N] or [N, components], attribute `location` = "vertex" | "cell"
 //! /dofs/<name>          f64 [len], attribute `space` = "P1b^3", "P2b^3", "P2^2", "P0", …
 //!                       (element and number of component blocks; absent in
@@ -157,6 +158,17 @@ pub(crate) fn validate(mesh: &Mesh, data: &ResultData) -> Res<()> {
                 ));
             }
         }
+    }
+
+    if let Some(surface) = &data.surface {
+        if surface.len() != nv {
+            return Err(format!(
+                "/mesh/surface: {} points, but Nv = {nv}",
+                surface.len()
+            ));
+        }
+        let flat: Vec<f64> = surface.iter().flatten().copied().collect();
+        check_finite("/mesh/surface", &flat, 3)?;
     }
 
     check_unique("/fields", data.fields.iter().map(|f| f.name.as_str()))?;
@@ -337,6 +349,10 @@ fn write_layout(file: &File, mesh: &Mesh, data: &ResultData) -> Res<()> {
         let edges: Vec<u64> = mesh.edges.iter().flatten().map(|&v| v as u64).collect();
         write_u64(&g, "/mesh/edges", "edges", &[mesh.edges.len(), 2], &edges)?;
     }
+    if let Some(surface) = &data.surface {
+        let points: Vec<f64> = surface.iter().flatten().copied().collect();
+        write_f64(&g, "/mesh/surface", "surface", &[nv, 3], &points)?;
+    }
     drop(g);
 
     let g = new_group(root, "fields")?;
@@ -471,6 +487,17 @@ pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
         .unwrap_or("result.xdmf")
         .to_string();
     let xdmf_text = xdmf::render(&file_name, mesh, data);
+    // A shell's parameter domain gets its own companion (the main one is 3D).
+    let domain = data.surface.as_ref().map(|_| {
+        let flat = ResultData {
+            surface: None,
+            ..data.clone()
+        };
+        (
+            xdmf::domain_xdmf_path(path),
+            xdmf::render(&file_name, mesh, &flat),
+        )
+    });
 
     hdf5::silence_errors(true);
     // Both temporaries are removed when dropped, i.e. on every early return.
@@ -484,6 +511,21 @@ pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
         .and_then(|_| x_tmp.flush())
         .map_err(|e| fail(format!("writing the XDMF companion: {e}")))?;
     finish_temp(&x_tmp).map_err(fail)?;
+    let domain_tmp = match &domain {
+        Some((domain_path, text)) => {
+            let name = domain_path
+                .file_name()
+                .and_then(|n| n.to_str())
+                .unwrap_or("result.domain.xdmf");
+            let mut tmp = temp_in(&dir, name).map_err(fail)?;
+            tmp.write_all(text.as_bytes())
+                .and_then(|_| tmp.flush())
+                .map_err(|e| fail(format!("writing the parameter-domain XDMF: {e}")))?;
+            finish_temp(&tmp).map_err(fail)?;
+            Some((domain_path, tmp))
+        }
+        None => None,
+    };
 
     h5_tmp.persist(path).map_err(|e| {
         fail(format!(
@@ -491,15 +533,17 @@ pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
             e.error
         ))
     })?;
-    x_tmp.persist(&xdmf_path).map_err(|e| {
-        Error::output(
-            &xdmf_path,
-            format!(
-                "renaming the finished XDMF file onto the target (the .h5 file was written): {}",
-                e.error
-            ),
-        )
-    })?;
+    for (target, tmp) in [(&xdmf_path, x_tmp)].into_iter().chain(domain_tmp) {
+        tmp.persist(target).map_err(|e| {
+            Error::output(
+                target,
+                format!(
+                    "renaming the finished XDMF file onto the target (the .h5 file was written): {}",
+                    e.error
+                ),
+            )
+        })?;
+    }
     Ok(())
 }
 
@@ -760,8 +804,23 @@ fn read_layout(file: &File) -> Res<ResultFile> {
         None
     };
 
+    let surface = if mesh.link_exists("surface") {
+        let ds = open_dataset(&mesh, "surface", "/mesh/surface")?;
+        let shape = ds.shape();
+        if shape != [nv, 3] {
+            return Err(format!(
+                "/mesh/surface: shape {shape:?}, expected [Nv, 3] = [{nv}, 3]"
+            ));
+        }
+        let flat = read_f64(&ds, "/mesh/surface")?;
+        Some(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    } else {
+        None
+    };
+
     let mut data = ResultData {
         write_edges: edges.is_some(),
+        surface,
         ..ResultData::default()
     };
 

@@ -58,6 +58,9 @@ pub struct ResultData {
     pub dof_spaces: Vec<(String, String)>,
     /// Write `/mesh/edges` (needed when a P2 coefficient vector is stored).
     pub write_edges: bool,
+    /// `/mesh/surface`: the points φ(x) of a shell's midsurface at the
+    /// vertices, [Nv, 3]; the XDMF then shows the shell in 3D.
+    pub surface: Option<Vec<[f64; 3]>>,
     /// Attributes of the `/solver` group.
     pub solver_attrs: Vec<(String, AttrValue)>,
     /// `/solver/history/<measure>`: one value per iteration, all of equal length.
@@ -80,7 +83,7 @@ pub struct ResultFile {
 }
 
 pub use hdf5_io::{program_version, read_result, write_result};
-pub use xdmf::xdmf_path;
+pub use xdmf::{domain_xdmf_path, xdmf_path};
 
 impl std::fmt::Display for AttrValue {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

@@ -8,7 +8,10 @@
 //!   described as `NumberType="Int" Precision="8"` because 64-bit unsigned is not
 //!   an XDMF array type everywhere (Xdmf2 and older Xdmf3 stop at UInt32), and
 //!   HDF5 converts u64 → i64 on reading (indices are far below 2^63).
-//! - Geometry `XY` from `/mesh/vertices` (`Float`, `Precision="8"`).
+//! - Geometry `XY` from `/mesh/vertices` (`Float`, `Precision="8"`); for a
+//!   shell (`/mesh/surface` present) `XYZ` from `/mesh/surface`, so the shell
+//!   appears in 3D and "Warp By Vector" on u deforms it. The shell's flat
+//!   parameter domain is `FILE.domain.xdmf` (same fields, XY geometry).
 //! - A field with 1 component is a `Scalar`, with 3 a `Vector`; any other count
 //!   is a `Matrix` (ParaView takes the last dimension as the component count).
 //!   Vertex fields are `Center="Node"`, cell fields `Center="Cell"`.
@@ -22,6 +25,11 @@ use std::path::{Path, PathBuf};
 /// The XDMF file written beside a result file: same name, extension `.xdmf`.
 pub fn xdmf_path(h5_path: &Path) -> PathBuf {
     h5_path.with_extension("xdmf")
+}
+
+/// A shell's parameter-domain view beside its 3D XDMF: `FILE.domain.xdmf`.
+pub fn domain_xdmf_path(h5_path: &Path) -> PathBuf {
+    h5_path.with_extension("domain.xdmf")
 }
 
 /// Escapes text for an XML attribute value or element content.
@@ -81,13 +89,17 @@ pub fn render(h5_file_name: &str, mesh: &Mesh, data: &ResultData) -> String {
         &format!("{h5_file_name}:/mesh/triangles"),
     );
     out.push_str("      </Topology>\n");
-    out.push_str("      <Geometry GeometryType=\"XY\">\n");
+    let (geometry, dims, dataset) = match data.surface {
+        Some(_) => ("XYZ", format!("{nv} 3"), "/mesh/surface"),
+        None => ("XY", format!("{nv} 2"), "/mesh/vertices"),
+    };
+    let _ = writeln!(out, "      <Geometry GeometryType=\"{geometry}\">");
     data_item(
         &mut out,
         "        ",
-        &format!("{nv} 2"),
+        &dims,
         "Float",
-        &format!("{h5_file_name}:/mesh/vertices"),
+        &format!("{h5_file_name}:{dataset}"),
     );
     out.push_str("      </Geometry>\n");
     for field in &data.fields {

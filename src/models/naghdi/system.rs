@@ -524,6 +524,17 @@ impl ModelSystem for NaghdiSystem<'_> {
         let layout = &self.layout;
         let nv = layout.n_vertices;
         let mut data = ResultData {
+            // The midsurface at the vertices: the result shows the shell in 3D.
+            surface: Some(
+                self.mesh
+                    .vertices
+                    .iter()
+                    .map(|&x| {
+                        let phi = self.chart.at(x).phi;
+                        [phi.x, phi.y, phi.z]
+                    })
+                    .collect(),
+            ),
             write_edges: layout
                 .fields
                 .iter()
