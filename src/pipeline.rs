@@ -8,7 +8,9 @@ use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
-use crate::output::{numeric_attr, write_result, AttrValue, Location, ResultData};
+use crate::output::{
+    numeric_attr, write_result, xdmf_path, AttrValue, Location, OutputTransaction, ResultData,
+};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
@@ -70,7 +72,13 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     };
     params.extend(scene.mesh.parameters.iter().map(|(k, v)| (k.clone(), *v)));
     run_gmsh(&geo, msh_path, &params)?;
-    Mesh::read_msh(msh_path)
+    // msh_path is a temporary the user never sees: errors and the mesh name the .geo.
+    let mut mesh = Mesh::read_msh(msh_path).map_err(|e| match e {
+        Error::Mesh { reason, .. } => Error::mesh(&geo, format!("the mesh gmsh made: {reason}")),
+        other => other,
+    })?;
+    mesh.source = geo;
+    Ok(mesh)
 }
 
 /// The scene's mesh, meshed into a temporary folder (kept alive by the
@@ -125,20 +133,25 @@ pub fn output_folder(out: &Path) -> Result<&Path> {
     Ok(dir)
 }
 
-/// Runs a scene and writes `out` (HDF5, plus the `.xdmf` and `.msh` beside it).
+/// Runs a scene and writes `out` (HDF5, plus the `.xdmf`, the `.msh` and the
+/// scene's plots beside it) in one [`OutputTransaction`]: all of them or,
+/// on any error, none, and never over an input of the run.
 pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
     let start = Instant::now();
     let dir = output_folder(out)?;
-    // The mesh is written under a temporary name and renamed beside the
-    // result only when the run succeeds: a failed run never clobbers FILE.msh.
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
-    let msh_tmp = tempfile::Builder::new()
-        .prefix(&format!("{stem}."))
-        .suffix(".msh.partial")
-        .tempfile_in(dir)
-        .map_err(|e| Error::output(dir, format!("cannot create a temporary mesh file: {e}")))?
-        .into_temp_path();
-    let mesh = scene_mesh(scene, &msh_tmp)?;
+    let outputs = OutputTransaction::new(dir, stem, &scene.input_files())?;
+    // Staging checks each target now, before the run, not after it.
+    let staged_out = outputs.stage(out)?;
+    outputs.stage(&xdmf_path(out))?;
+    for kind in &scene.output.plots {
+        outputs.stage(&plot_path(scene, out, *kind))?;
+    }
+    let msh = match &scene.mesh.file {
+        None => outputs.stage(&out.with_extension("msh"))?,
+        Some(_) => PathBuf::new(), // the scene's own mesh file: nothing written
+    };
+    let mesh = scene_mesh(scene, &msh)?;
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
@@ -161,16 +174,9 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         None
     };
     record_solver(&mut data, scene, &report, spectrum);
-    write_result(out, &mesh, &data)?;
-    if scene.mesh.file.is_none() {
-        let msh = out.with_extension("msh");
-        msh_tmp
-            .persist(&msh)
-            .map_err(|e| Error::output(&msh, format!("cannot write the mesh file: {e}")))?;
-        use std::os::unix::fs::PermissionsExt;
-        let _ = std::fs::set_permissions(&msh, std::fs::Permissions::from_mode(0o644));
-    }
-    write_plots(scene, out, &mesh, &data, &report, errors.as_ref())?;
+    write_result(&staged_out, &mesh, &data)?;
+    write_plots(scene, &staged_out, &mesh, &data, &report, errors.as_ref())?;
+    outputs.commit()?;
     Ok(RunSummary {
         scene: scene.name.clone(),
         model: scene.model.name().into(),
@@ -340,6 +346,12 @@ fn solve(
     Ok((report, Some(alpha), spectrum))
 }
 
+/// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
+fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
+    let name = format!("{kind:?}").to_lowercase();
+    out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))
+}
+
 /// The plots the scene asks for, beside the result file; nothing else is drawn.
 fn write_plots(
     scene: &Scene,
@@ -349,11 +361,10 @@ fn write_plots(
     report: &SolveReport,
     errors: Option<&ExactErrors>,
 ) -> Result<()> {
-    let ext = scene.output.plot_format.extension();
     let field = |name: &str| data.fields.iter().find(|f| f.name == name);
     for kind in &scene.output.plots {
         let name = format!("{kind:?}").to_lowercase();
-        let path = out.with_extension(format!("{name}.{ext}"));
+        let path = plot_path(scene, out, *kind);
         let title = format!("{}: {name} ({})", scene.name, scene.element.name());
         match kind {
             PlotKind::History => {
