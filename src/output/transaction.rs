@@ -1,6 +1,6 @@
 //! One output transaction per command: every file a run writes (result,
 //! XDMF, mesh, plots, tables) is staged in a hidden folder beside its target,
-//! `.<label>.obstacle-tmp-XXXXXX/`, and moved into place only when all of
+//! `.<label>.obstacle-tmp-<pid>-XXXXXX/`, and moved into place only when all of
 //! them were written. A failed run leaves the previous outputs as they were.
 //!
 //! A target is refused, before anything is computed ([`OutputTransaction::stage`])
@@ -13,13 +13,14 @@
 //! Staging folders and other temporaries registered with [`RemoveOnSignal`]
 //! are removed when the transaction is dropped uncommitted and on SIGINT or
 //! SIGTERM (the process then exits with 128 + the signal number, 130 or 143).
-//! A SIGKILL cannot be caught: its staging folder stays, hidden.
+//! A SIGKILL or a crash cannot be caught: its staging folder stays, hidden,
+//! until the next transaction in that folder sees its process gone.
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-/// The part of a staging folder's name after `.<label>`.
+/// A staging folder is `.<label>` + this + `<pid>-XXXXXX`.
 pub const STAGING_MARK: &str = ".obstacle-tmp-";
 
 /// Files (or folders) to remove if the process is interrupted.
@@ -76,6 +77,30 @@ fn install_signal_cleanup() {
     });
 }
 
+/// Removes the staging folders in `folder` left by runs that died without
+/// cleaning up (SIGKILL, a crash): those whose process (the number after
+/// [`STAGING_MARK`]) no longer exists. Only where /proc tells.
+fn remove_orphaned_staging(folder: &Path) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .split_once(STAGING_MARK)
+            .and_then(|(_, rest)| rest.split('-').next())
+            .and_then(|p| p.parse::<u32>().ok());
+        if let Some(pid) = pid.filter(|_| name.starts_with('.')) {
+            if !Path::new(&format!("/proc/{pid}")).exists() {
+                remove_all(&entry.path());
+            }
+        }
+    }
+}
+
 /// Removes a file or a folder with its contents. A child process (gmsh) may
 /// still be writing into the folder: a few attempts.
 fn remove_all(path: &Path) {
@@ -109,6 +134,8 @@ impl OutputTransaction {
     /// missing); `label` names its staging folder (e.g. the result's stem);
     /// `inputs` are the files of the run that no output may replace.
     pub fn new(folder: &Path, label: &str, inputs: &[PathBuf]) -> Result<OutputTransaction> {
+        // Before the staging folder exists: a signal never finds it unguarded.
+        install_signal_cleanup();
         let folder = if folder.as_os_str().is_empty() {
             Path::new(".")
         } else {
@@ -119,8 +146,9 @@ impl OutputTransaction {
         let canonical = folder
             .canonicalize()
             .map_err(|e| Error::output(folder, format!("cannot resolve the output folder: {e}")))?;
+        remove_orphaned_staging(&canonical);
         let staging = tempfile::Builder::new()
-            .prefix(&format!(".{label}{STAGING_MARK}"))
+            .prefix(&format!(".{label}{STAGING_MARK}{}-", std::process::id()))
             .tempdir_in(&canonical)
             .map_err(|e| {
                 Error::output(folder, format!("cannot create a staging folder in it: {e}"))
@@ -377,6 +405,22 @@ mod tests {
         );
         assert_eq!(std::fs::read_to_string(&b).unwrap(), "<new/>");
         assert!(staging_folders(dir.path()).is_empty());
+    }
+
+    #[test]
+    fn orphaned_staging_folders_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        // No process has this number (above the kernel's pid_max limit of 2^22).
+        let orphan = dir.path().join(format!(".r{STAGING_MARK}4294967-abc"));
+        let alive = dir
+            .path()
+            .join(format!(".r{STAGING_MARK}{}-abc", std::process::id()));
+        std::fs::create_dir_all(orphan.join(".gmsh-x")).unwrap();
+        std::fs::create_dir(&alive).unwrap();
+        let tx = OutputTransaction::new(dir.path(), "r", &[]).unwrap();
+        assert!(!orphan.exists());
+        assert!(alive.exists());
+        drop(tx);
     }
 
     #[test]
