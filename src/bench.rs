@@ -146,7 +146,15 @@ impl BenchConfig {
         if cfg.cap_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return Err(err("cap_seconds", "must be > 0".into()));
         }
+        // Each of these becomes part of a file name.
+        crate::names::check_name(&cfg.name).map_err(|reason| err("name", reason))?;
+        for p in &cfg.problem {
+            crate::names::check_name(&p.label)
+                .map_err(|reason| err("problem.label", format!("`{}` {reason}", p.label)))?;
+        }
         for m in &cfg.method {
+            crate::names::check_name(&m.label)
+                .map_err(|reason| err("method.label", format!("`{}` {reason}", m.label)))?;
             if m.iteration_cost != "solve" && m.iteration_cost != "factor" {
                 return Err(err(
                     "method.iteration_cost",

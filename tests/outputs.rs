@@ -314,19 +314,21 @@ fn an_interrupted_run_leaves_nothing_behind() {
             .spawn()
             .unwrap();
         let started = std::time::Instant::now();
+        // Ready once a temporary exists; for SIGINT, once it holds the mesh
+        // (the solver is running then).
+        let meshed = |p: &PathBuf| {
+            p.join("r.msh").exists()
+                || std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.len() > 0)
+        };
         loop {
-            let staging = std::fs::read_dir(dir.path())
-                .unwrap()
-                .flatten()
-                .find(|e| e.file_name().to_string_lossy().contains(".obstacle-tmp-"));
-            let ready = staging.is_some_and(|s| !wait_for_mesh || s.path().join("r.msh").exists());
-            if ready {
+            let temporaries = leftovers(dir.path());
+            if temporaries.iter().any(|p| !wait_for_mesh || meshed(p)) {
                 break;
             }
             if let Some(status) = child.try_wait().unwrap() {
                 panic!("the run ended ({status}) before it could be interrupted");
             }
-            assert!(started.elapsed().as_secs() < 300, "no staging folder");
+            assert!(started.elapsed().as_secs() < 300, "no temporary appeared");
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
         let kill = std::process::Command::new("kill")
