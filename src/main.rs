@@ -280,7 +280,8 @@ fn run(cli: Cli) -> Result<()> {
             let rows = run_study(&study, &out_dir, !quiet && progress_wanted())?;
             let spec = Study::load(&study)?;
             // The tables and plots appear together; the runs' files are each their own.
-            let outputs = OutputTransaction::new(&out_dir, &spec.name, &[study.clone()])?;
+            let outputs =
+                OutputTransaction::new(&out_dir, &spec.name, std::slice::from_ref(&study))?;
             let mut md = markdown_table(&spec, &rows);
             if let Some(h) = &spec.history {
                 md.push_str(&history_tables(h, &rows));

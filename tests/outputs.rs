@@ -4,7 +4,9 @@
 
 mod common;
 
-use common::{manifest_path, run_obstacle, run_obstacle_env, text};
+use common::{
+    assert_one_error, manifest_path, run_obstacle, run_obstacle_env, solve_membrane as solve, text,
+};
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
@@ -24,26 +26,6 @@ fn leftovers(dir: &Path) -> Vec<PathBuf> {
         }
     }
     found
-}
-
-/// The one `error:` line of a failed run (no panic), which must contain every word of `expected`.
-fn assert_one_error(o: &Output, expected: &[&str], what: &str) {
-    let t = text(o);
-    assert!(!o.status.success(), "{what} should fail: {t}");
-    assert!(!t.contains("panicked"), "{what} panicked: {t}");
-    let errors: Vec<&str> = t.lines().filter(|l| l.starts_with("error: ")).collect();
-    assert_eq!(errors.len(), 1, "{what}: one error line expected: {t}");
-    for e in expected {
-        assert!(errors[0].contains(e), "{what}: the error lacks `{e}`: {t}");
-    }
-}
-
-fn solve(out: &Path, sets: &[&str]) -> Output {
-    let mut args = vec!["solve", MEMBRANE, "--quiet", "--out", out.to_str().unwrap()];
-    for s in sets {
-        args.extend(["--set", s]);
-    }
-    run_obstacle(&args)
 }
 
 /// A target that is a directory (the `.xdmf`, a plot) makes the run fail

@@ -120,8 +120,8 @@ fn remove_all(path: &Path) {
 /// The outputs of one command, staged in one folder and moved into place together.
 pub struct OutputTransaction {
     /// Where the outputs land, as given and canonical.
-    given: PathBuf,
     folder: PathBuf,
+    canonical_folder: PathBuf,
     staging: PathBuf,
     /// Canonical paths of the run's inputs, never replaced.
     inputs: Vec<PathBuf>,
@@ -156,8 +156,8 @@ impl OutputTransaction {
             .keep();
         let cleanup = RemoveOnSignal::new(&staging);
         Ok(OutputTransaction {
-            given: folder.to_path_buf(),
-            folder: canonical,
+            folder: folder.to_path_buf(),
+            canonical_folder: canonical,
             staging,
             inputs: inputs
                 .iter()
@@ -170,7 +170,7 @@ impl OutputTransaction {
 
     /// The folder the outputs land in, as given.
     pub fn folder(&self) -> &Path {
-        &self.given
+        &self.folder
     }
 
     /// The path at which to write the file that becomes `target` on commit.
@@ -184,12 +184,12 @@ impl OutputTransaction {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
         };
-        if parent.canonicalize().ok().as_deref() != Some(self.folder.as_path()) {
+        if parent.canonicalize().ok().as_deref() != Some(self.canonical_folder.as_path()) {
             return Err(Error::output(
                 target,
                 format!(
                     "internal: staged outside the output folder {}",
-                    self.folder.display()
+                    self.canonical_folder.display()
                 ),
             ));
         }
@@ -218,7 +218,9 @@ impl OutputTransaction {
         let moves: Vec<(PathBuf, PathBuf)> = staged
             .into_iter()
             .map(|from| {
-                let to = self.folder.join(from.file_name().expect("a listed file"));
+                let to = self
+                    .canonical_folder
+                    .join(from.file_name().expect("a listed file"));
                 (from, to)
             })
             .collect();
