@@ -1,4 +1,5 @@
-//! Outputs (issue 16, part 1): a run's files appear together or not at all,
+//! Outputs (issue 16, part 1; each test fails on the code before the output
+//! transaction): a run's files appear together or not at all,
 //! never over an input of the run or a file of another kind; names cannot
 //! leave their folder; an interrupted run leaves no temporary behind.
 
@@ -137,6 +138,42 @@ fn mesh_out_never_replaces_inputs_or_other_files() {
     let o = mesh(&from_file, &copy);
     assert!(o.status.success(), "{}", text(&o));
     assert_eq!(std::fs::read(&copy).unwrap(), meshed);
+    assert_eq!(leftovers(d), Vec::<PathBuf>::new());
+}
+
+/// gmsh's mesh is validated before it moves: a `.geo` whose boundary has
+/// no Physical Curve fails, naming the `.geo`, and the old `--out` stays.
+#[test]
+fn a_mesh_that_fails_validation_is_not_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = scene_with_geo(d);
+    std::fs::write(
+        d.join("disk.geo"),
+        "Point(1) = {0, 0, 0, 0.3}; Point(2) = {1, 0, 0, 0.3};\n\
+         Point(3) = {1, 1, 0, 0.3}; Point(4) = {0, 1, 0, 0.3};\n\
+         Line(1) = {1, 2}; Line(2) = {2, 3}; Line(3) = {3, 4}; Line(4) = {4, 1};\n\
+         Curve Loop(1) = {1, 2, 3, 4}; Plane Surface(1) = {1};\n\
+         Physical Surface(\"domain\") = {1};\n",
+    )
+    .unwrap();
+    let out = d.join("old.msh");
+    std::fs::write(&out, "$MeshFormat\nthe old mesh\n").unwrap();
+    let o = run_obstacle(&[
+        "mesh",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_one_error(
+        &o,
+        &["disk.geo", "missing boundary tag"],
+        "untagged boundary",
+    );
+    assert_eq!(
+        std::fs::read_to_string(&out).unwrap(),
+        "$MeshFormat\nthe old mesh\n"
+    );
     assert_eq!(leftovers(d), Vec::<PathBuf>::new());
 }
 
