@@ -193,7 +193,7 @@ pub fn run_case(
     let scene = Scene::load(scene_path, set)?;
     let mut f: Vec<(String, String)> = Vec::new();
     if linear {
-        let (_dir, mesh) = scene_mesh_in_temp(&scene)?;
+        let mesh = scene_mesh_in_temp(&scene)?;
         let system = setup_model(&scene, &mesh)?;
         let problem = system.assemble(&scene)?;
         // Peak RSS so far: meshing and assembly (coordinate triplets) alone.

@@ -8,6 +8,7 @@ use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::ModelSystem;
+use crate::output::transaction::RemoveOnSignal;
 use crate::output::{
     numeric_attr, write_result, xdmf_path, AttrValue, Location, OutputTransaction, ResultData,
 };
@@ -81,17 +82,17 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     Ok(mesh)
 }
 
-/// The scene's mesh, meshed into a temporary folder (kept alive by the
-/// returned handle) when nothing is to be kept beside a result.
-pub fn scene_mesh_in_temp(scene: &Scene) -> Result<(tempfile::TempDir, Mesh)> {
+/// The scene's mesh when no file is to be kept: meshed into a temporary
+/// folder, removed once read (or on SIGINT/SIGTERM).
+pub fn scene_mesh_in_temp(scene: &Scene) -> Result<Mesh> {
     let dir = tempfile::tempdir().map_err(|e| {
         Error::output(
             std::env::temp_dir(),
             format!("cannot create a temporary folder: {e}"),
         )
     })?;
-    let mesh = scene_mesh(scene, &dir.path().join("mesh.msh"))?;
-    Ok((dir, mesh))
+    let _on_signal = RemoveOnSignal::new(dir.path());
+    scene_mesh(scene, &dir.path().join("mesh.msh"))
 }
 
 /// The dual step: the scene's number, or "auto" from a Lanczos estimate of
@@ -223,7 +224,7 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     }
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
-    let (_dir, coarse_mesh) = scene_mesh_in_temp(&coarse)?;
+    let coarse_mesh = scene_mesh_in_temp(&coarse)?;
     let system = setup_model(&coarse, &coarse_mesh)?;
     let problem = system.assemble(&coarse)?;
     if problem.n_multipliers() != coarse_mesh.n_triangles() {
