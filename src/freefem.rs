@@ -28,7 +28,9 @@ use crate::mesh::Mesh;
 use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, ShellLayout};
 use crate::models::naghdi::geometry::Chart;
 use crate::models::named_boundary_tags;
-use crate::output::{write_result, AttrValue, ResultData};
+use crate::output::{
+    domain_xdmf_path, write_result, xdmf_path, AttrValue, OutputTransaction, ResultData,
+};
 use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
     Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
@@ -805,10 +807,21 @@ pub fn run_freefem_scene(
     out: &Path,
     iterations: Option<usize>,
 ) -> Result<FreefemRun> {
-    crate::pipeline::output_folder(out)?;
+    let folder = crate::pipeline::output_folder(out)?;
+    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
+    let script = script_for_scene(scene);
+    let mut inputs = scene.input_files();
+    inputs.push(script.clone());
+    // The result, its XDMF and the mesh appear together or not at all.
+    let outputs = OutputTransaction::new(folder, stem, &inputs)?;
+    let staged_out = outputs.stage(out)?;
+    outputs.stage(&xdmf_path(out))?;
+    if scene.model == Model::Naghdi {
+        outputs.stage(&domain_xdmf_path(out))?;
+    }
     let msh = match &scene.mesh.file {
         Some(f) => scene.resolve(f),
-        None => out.with_extension("msh"),
+        None => outputs.stage(&out.with_extension("msh"))?,
     };
     let mesh = scene_mesh(scene, &msh)?;
     // The Rust model of the same scene: α = auto comes from its problem, and
@@ -827,8 +840,8 @@ pub fn run_freefem_scene(
         .prefix("obstacle-freefem-")
         .tempdir()
         .map_err(|e| Error::output(std::env::temp_dir(), format!("cannot create a folder: {e}")))?;
+    let _on_signal = crate::output::transaction::RemoveOnSignal::new(work.path());
     let prefix = work.path().join("ff");
-    let script = script_for_scene(scene);
     let args = script_args(scene, &mesh, &msh, plan.as_ref(), &prefix)?;
     let wall_seconds = run_script_checked(&script, &args)?;
 
@@ -926,7 +939,8 @@ pub fn run_freefem_scene(
             AttrValue::Str(info.text("psri_weight")?.into()),
         ));
     }
-    write_result(out, &mesh, &data)?;
+    write_result(&staged_out, &mesh, &data)?;
+    outputs.commit()?;
     Ok(FreefemRun {
         iterations: it,
         stop_reason,

@@ -136,6 +136,8 @@ fn run_gmsh_with(
                 dir.display()
             ))
         })?;
+    // Removed on drop, and by the signal handler if the run is interrupted.
+    let _on_signal = crate::output::transaction::RemoveOnSignal::new(tmp_dir.path());
     let tmp = tmp_dir.path().join(file_name);
 
     let output = Command::new(program)

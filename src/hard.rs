@@ -8,7 +8,7 @@
 use crate::assembly::{mat_vec, norm2, Triplets};
 use crate::error::{Error, Result};
 use crate::linalg::{factorize_checked, Factorization, MatrixKind, Solves};
-use crate::pipeline::{run_scene, scene_mesh, setup_model, RunSummary};
+use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model, RunSummary};
 use crate::scene::Scene;
 use crate::solvers::ContactProblem;
 use std::fmt::Write as _;
@@ -138,9 +138,10 @@ fn primal_block(problem: &ContactProblem) -> faer::sparse::SparseColMat<usize, f
 pub type Conditions = (f64, Option<std::result::Result<f64, String>>);
 
 /// Mesh, assemble and factorise a scene's matrix as the pipeline does (the
-/// mesh goes to `msh`), and estimate its condition number, and that of K_ρ.
-pub fn scene_condition(scene: &Scene, msh: &Path) -> Result<Conditions> {
-    let mesh = scene_mesh(scene, msh)?;
+/// mesh in a temporary folder: the run writes it beside its result), and
+/// estimate its condition number, and that of K_ρ.
+pub fn scene_condition(scene: &Scene) -> Result<Conditions> {
+    let mesh = scene_mesh_in_temp(scene)?;
     let system = setup_model(scene, &mesh)?;
     let problem: ContactProblem = system.assemble()?;
     let what = problem.kind.describe();
@@ -176,8 +177,7 @@ pub fn run_case(
         let scene = Scene::load(&dir.join(format!("{case}.toml")), overrides)?;
         std::fs::create_dir_all(out_dir)
             .map_err(|e| Error::output(out_dir, format!("cannot create the folder: {e}")))?;
-        let (kappa, primal) =
-            scene_condition(&scene, &out_dir.join(format!("{case}.condition.msh")))?;
+        let (kappa, primal) = scene_condition(&scene)?;
         condition = Some(kappa);
         primal_condition = primal;
         run_scene(&scene, &out_dir.join(format!("{case}.h5")), false)

@@ -21,6 +21,7 @@ pub mod hard;
 pub mod linalg;
 pub mod mesh;
 pub mod models;
+pub mod names;
 pub mod output;
 pub mod pipeline;
 pub mod plot;

@@ -3,7 +3,8 @@
 use clap::{Parser, Subcommand};
 use obstacle_fem::bench::{run_bench, run_case, work_precision, BenchConfig};
 use obstacle_fem::error::{Error, Result};
-use obstacle_fem::output::{read_result, summary};
+use obstacle_fem::mesh::Mesh;
+use obstacle_fem::output::{read_result, summary, OutputTransaction};
 use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
 use obstacle_fem::scene::{command_line_overrides, Scene};
@@ -239,14 +240,10 @@ fn run(cli: Cli) -> Result<()> {
             let scene = Scene::load(&scene, &command_line_overrides(&set))?;
             let out =
                 out.unwrap_or_else(|| PathBuf::from(format!("build/meshes/{}.msh", scene.name)));
-            if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(dir)
-                    .map_err(|e| Error::output(dir, format!("cannot create: {e}")))?;
-            }
-            let mesh = scene_mesh(&scene, &out)?;
+            let mesh = mesh_command(&scene, &out)?;
             println!(
                 "{}: {} vertices, {} triangles, {} edges, h = {:.4}",
-                mesh.source.display(),
+                out.display(),
                 mesh.n_vertices(),
                 mesh.n_triangles(),
                 mesh.n_edges(),
@@ -286,38 +283,59 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let rows = run_study(&study, &out_dir, !quiet && progress_wanted())?;
             let spec = Study::load(&study)?;
+            // The tables and plots appear together; the runs' files are each their own.
+            let outputs =
+                OutputTransaction::new(&out_dir, &spec.name, std::slice::from_ref(&study))?;
             let mut md = markdown_table(&spec, &rows);
             if let Some(h) = &spec.history {
                 md.push_str(&history_tables(h, &rows));
             }
+            let mut plots = Vec::new();
             if let Some(r) = &spec.reference {
-                let (table, plots) = reference_study(&spec, r, &rows, &out_dir)?;
+                let (table, files) = reference_study(&spec, r, &rows, &outputs)?;
                 md.push_str(&table);
-                for f in plots {
-                    println!("plot: {}", f.display());
-                }
+                plots.extend(files);
             }
             if let Some(w) = &spec.work_precision {
-                let (table, plots) = write_work_precision(&spec, w, &rows, &out_dir)?;
+                let (table, files) = write_work_precision(&spec, w, &rows, &outputs)?;
                 md.push_str(&table);
-                for f in plots {
-                    println!("plot: {}", f.display());
-                }
+                plots.extend(files);
             }
-            print!("{md}");
-            write_text(&out_dir.join(format!("{}.md", spec.name)), &md)?;
-            write_text(
-                &out_dir.join(format!("{}.csv", spec.name)),
-                &csv_table(&spec, &rows),
-            )?;
             if spec.convergence_plot {
-                for f in write_convergence_plots(&spec, &rows, &out_dir)? {
-                    println!("plot: {}", f.display());
-                }
+                plots.extend(write_convergence_plots(&spec, &rows, &outputs)?);
+            }
+            let table = |ext: &str| outputs.stage(&out_dir.join(format!("{}.{ext}", spec.name)));
+            write_text(&table("md")?, &md)?;
+            write_text(&table("csv")?, &csv_table(&spec, &rows))?;
+            outputs.commit()?;
+            print!("{md}");
+            for f in plots {
+                println!("plot: {}", f.display());
             }
             Ok(())
         }
     }
+}
+
+/// `obstacle mesh`: the scene's mesh, validated, at `out` (a `.msh` that is
+/// not an input of the scene), in one output transaction. A `mesh.file`
+/// scene's mesh is validated and copied there.
+fn mesh_command(scene: &Scene, out: &Path) -> Result<Mesh> {
+    if out.extension().and_then(|e| e.to_str()) != Some("msh") {
+        return Err(Error::output(out, "the mesh file name must end in .msh"));
+    }
+    let folder = out.parent().unwrap_or(Path::new(""));
+    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh");
+    let outputs = OutputTransaction::new(folder, stem, &scene.input_files())?;
+    let staged = outputs.stage(out)?;
+    let mesh = scene_mesh(scene, &staged)?;
+    if let Some(file) = &scene.mesh.file {
+        let file = scene.resolve(file);
+        std::fs::copy(&file, &staged)
+            .map_err(|e| Error::output(out, format!("cannot copy {}: {e}", file.display())))?;
+    }
+    outputs.commit()?;
+    Ok(mesh)
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {

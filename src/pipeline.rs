@@ -8,7 +8,11 @@ use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::{ExactErrors, FigureData, ModelSystem};
-use crate::output::{numeric_attr, write_result, AttrValue, ResultData};
+use crate::output::transaction::RemoveOnSignal;
+use crate::output::{
+    domain_xdmf_path, numeric_attr, write_result, xdmf_path, AttrValue, OutputTransaction,
+    ResultData,
+};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
@@ -76,20 +80,26 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     };
     params.extend(scene.mesh.parameters.iter().map(|(k, v)| (k.clone(), *v)));
     run_gmsh(&geo, msh_path, &params)?;
-    Mesh::read_msh(msh_path)
+    // msh_path is a temporary the user never sees: errors and the mesh name the .geo.
+    let mut mesh = Mesh::read_msh(msh_path).map_err(|e| match e {
+        Error::Mesh { reason, .. } => Error::mesh(&geo, format!("the mesh gmsh made: {reason}")),
+        other => other,
+    })?;
+    mesh.source = geo;
+    Ok(mesh)
 }
 
-/// The scene's mesh, meshed into a temporary folder (kept alive by the
-/// returned handle) when nothing is to be kept beside a result.
-pub fn scene_mesh_in_temp(scene: &Scene) -> Result<(tempfile::TempDir, Mesh)> {
+/// The scene's mesh when no file is to be kept: meshed into a temporary
+/// folder, removed once read (or on SIGINT/SIGTERM).
+pub fn scene_mesh_in_temp(scene: &Scene) -> Result<Mesh> {
     let dir = tempfile::tempdir().map_err(|e| {
         Error::output(
             std::env::temp_dir(),
             format!("cannot create a temporary folder: {e}"),
         )
     })?;
-    let mesh = scene_mesh(scene, &dir.path().join("mesh.msh"))?;
-    Ok((dir, mesh))
+    let _on_signal = RemoveOnSignal::new(dir.path());
+    scene_mesh(scene, &dir.path().join("mesh.msh"))
 }
 
 /// Uzawa's step rule of a solver spec: `alpha_factor` × 2/s_max (the hard
@@ -163,20 +173,28 @@ pub fn output_folder(out: &Path) -> Result<&Path> {
     Ok(dir)
 }
 
-/// Runs a scene and writes `out` (HDF5, plus the `.xdmf` and `.msh` beside it).
+/// Runs a scene and writes `out` (HDF5, plus the `.xdmf`, the `.msh` and the
+/// scene's plots beside it) in one [`OutputTransaction`]: all of them or,
+/// on any error, none, and never over an input of the run.
 pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
     let start = Instant::now();
     let dir = output_folder(out)?;
-    // The mesh is written under a temporary name and renamed beside the
-    // result only when the run succeeds: a failed run never clobbers FILE.msh.
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
-    let msh_tmp = tempfile::Builder::new()
-        .prefix(&format!("{stem}."))
-        .suffix(".msh.partial")
-        .tempfile_in(dir)
-        .map_err(|e| Error::output(dir, format!("cannot create a temporary mesh file: {e}")))?
-        .into_temp_path();
-    let mesh = scene_mesh(scene, &msh_tmp)?;
+    let outputs = OutputTransaction::new(dir, stem, &scene.input_files())?;
+    // Staging checks each target now, before the run, not after it.
+    let staged_out = outputs.stage(out)?;
+    outputs.stage(&xdmf_path(out))?;
+    if scene.model == Model::Naghdi {
+        outputs.stage(&domain_xdmf_path(out))?; // the shell's flat parameter domain
+    }
+    for kind in &scene.output.plots {
+        outputs.stage(&plot_path(scene, out, *kind))?;
+    }
+    let msh = match &scene.mesh.file {
+        None => outputs.stage(&out.with_extension("msh"))?,
+        Some(_) => PathBuf::new(), // the scene's own mesh file: nothing written
+    };
+    let mesh = scene_mesh(scene, &msh)?;
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
@@ -201,16 +219,16 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         data.root_attrs.extend(e.attrs());
     }
     record_solver(&mut data, &scene.solver, &report);
-    write_result(out, &mesh, &data)?;
-    if scene.mesh.file.is_none() {
-        let msh = out.with_extension("msh");
-        msh_tmp
-            .persist(&msh)
-            .map_err(|e| Error::output(&msh, format!("cannot write the mesh file: {e}")))?;
-        use std::os::unix::fs::PermissionsExt;
-        let _ = std::fs::set_permissions(&msh, std::fs::Permissions::from_mode(0o644));
-    }
-    write_plots(scene, out, system.as_ref(), &data, &report, errors.as_ref())?;
+    write_result(&staged_out, &mesh, &data)?;
+    write_plots(
+        scene,
+        &staged_out,
+        system.as_ref(),
+        &data,
+        &report,
+        errors.as_ref(),
+    )?;
+    outputs.commit()?;
     Ok(RunSummary {
         scene: scene.name.clone(),
         model: scene.model.name().into(),
@@ -259,7 +277,7 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     }
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
-    let (_dir, coarse_mesh) = scene_mesh_in_temp(&coarse)?;
+    let coarse_mesh = scene_mesh_in_temp(&coarse)?;
     let system = setup_model(&coarse, &coarse_mesh)?;
     let problem = system.assemble()?;
     if problem.n_multipliers() != coarse_mesh.n_triangles() {
@@ -288,6 +306,12 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     Ok(Some(lambda))
 }
 
+/// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
+fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
+    let name = format!("{kind:?}").to_lowercase();
+    out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))
+}
+
 /// The plots the scene asks for, beside the result file; nothing else is
 /// drawn. The solver's history is drawn here, every other figure by the model.
 fn write_plots(
@@ -298,11 +322,10 @@ fn write_plots(
     report: &SolveReport,
     errors: Option<&ExactErrors>,
 ) -> Result<()> {
-    let ext = scene.output.plot_format.extension();
     let figure = FigureData { data, errors };
     for &kind in &scene.output.plots {
         let name = format!("{kind:?}").to_lowercase();
-        let path = out.with_extension(format!("{name}.{ext}"));
+        let path = plot_path(scene, out, kind);
         let title = format!("{}: {name} ({})", scene.name, scene.element.name());
         if kind != PlotKind::History {
             system.plot(kind, &path, &title, &figure)?;

@@ -591,9 +591,7 @@ impl Scene {
                 Err(self.error(field, format!("must be > 0, got {v}")))
             }
         };
-        if self.name.trim().is_empty() || self.name.contains('/') {
-            return Err(self.error("name", "must be non-empty and contain no '/'"));
-        }
+        crate::names::check_name(&self.name).map_err(|reason| self.error("name", reason))?;
         let m = &self.mesh;
         match (&m.file, &m.geo) {
             (Some(_), Some(_)) => {
@@ -915,6 +913,19 @@ impl Scene {
         } else {
             Err(self.error(field, format!("must be a finite number, got {v}")))
         }
+    }
+
+    /// The files a run reads (the scene, its `.geo` or mesh file): no
+    /// output may replace them.
+    pub fn input_files(&self) -> Vec<PathBuf> {
+        let mut files = vec![self.source.clone()];
+        files.extend(
+            [&self.mesh.geo, &self.mesh.file]
+                .into_iter()
+                .flatten()
+                .map(|f| self.resolve(f)),
+        );
+        files
     }
 
     /// A path of the scene, relative to the scene file's folder.

@@ -21,7 +21,7 @@
 
 use crate::error::{Error, Result};
 use crate::models::ExactErrors;
-use crate::output::read_result;
+use crate::output::{read_result, OutputTransaction};
 use crate::pipeline::{run_scene, RunSummary};
 use crate::plot;
 use crate::scene::{read_toml_file, Scene};
@@ -103,6 +103,29 @@ impl Study {
             reason,
         };
         let study: Study = read_toml_file(path)?;
+        crate::names::check_name(&study.name).map_err(|reason| err("name", reason))?;
+        if let Some(w) = &study.work_precision {
+            for name in w.reference.keys() {
+                // Each names a plot file.
+                crate::names::check_name(name).map_err(|reason| {
+                    err("work_precision.reference", format!("`{name}` {reason}"))
+                })?;
+            }
+        }
+        let mut swept: Vec<&str> = Vec::new();
+        for key in study
+            .sweep
+            .iter()
+            .flat_map(|s| std::iter::once(&s.key).chain(s.with.keys()))
+        {
+            if swept.contains(&key.as_str()) {
+                return Err(err(
+                    "sweep.key",
+                    format!("`{key}` is swept twice: each key may be set by one sweep only"),
+                ));
+            }
+            swept.push(key);
+        }
         if study.sweep.iter().any(|s| s.values.is_empty()) {
             return Err(err(
                 "sweep.values",
@@ -513,7 +536,7 @@ pub fn reference_study(
     study: &Study,
     spec: &ReferenceSpec,
     rows: &[StudyRow],
-    out_dir: &Path,
+    outputs: &OutputTransaction,
 ) -> Result<(String, Vec<PathBuf>)> {
     let mut md = String::new();
     let mut files = Vec::new();
@@ -576,9 +599,11 @@ pub fn reference_study(
             .map(|(_, pts)| plot::loglog_slope(pts).map_or("–".into(), |k| format!("{k:.2}")))
             .collect();
         let _ = writeln!(md, "| fitted rate κ | {} |", slopes.join(" | "));
-        let path = out_dir.join(format!("{}-reference-{}.png", study.name, files.len()));
+        let path = outputs
+            .folder()
+            .join(format!("{}-reference-{}.png", study.name, files.len()));
         plot::plot_convergence(
-            &path,
+            &outputs.stage(&path)?,
             &series,
             "h",
             "relative L² error",
@@ -598,7 +623,7 @@ pub fn write_work_precision(
     study: &Study,
     spec: &WorkPrecisionSpec,
     rows: &[StudyRow],
-    out_dir: &Path,
+    outputs: &OutputTransaction,
 ) -> Result<(String, Vec<PathBuf>)> {
     let mut files = Vec::new();
     let mut md =
@@ -650,9 +675,11 @@ pub fn write_work_precision(
                 (label.join(", "), pts)
             })
             .collect();
-        let path = out_dir.join(format!("{}-work-precision-{name}.png", study.name));
+        let path = outputs
+            .folder()
+            .join(format!("{}-work-precision-{name}.png", study.name));
         plot::plot_convergence(
-            &path,
+            &outputs.stage(&path)?,
             &series,
             "wall time [s]",
             &format!("relative error of {name}"),
@@ -669,7 +696,7 @@ pub fn write_work_precision(
 pub fn write_convergence_plots(
     study: &Study,
     rows: &[StudyRow],
-    out_dir: &Path,
+    outputs: &OutputTransaction,
 ) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for range in groups(rows) {
@@ -692,9 +719,12 @@ pub fn write_convergence_plots(
         ];
         if series[0].1.len() >= 2 {
             let label: Vec<String> = group.iter().map(|(k, v)| format!("{k} = {v}")).collect();
-            let path = out_dir.join(format!("{}-convergence-{}.png", study.name, files.len()));
+            let path =
+                outputs
+                    .folder()
+                    .join(format!("{}-convergence-{}.png", study.name, files.len()));
             plot::plot_convergence(
-                &path,
+                &outputs.stage(&path)?,
                 &series,
                 "h",
                 "error",

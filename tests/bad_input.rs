@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{run_obstacle, run_obstacle_env, text};
+use common::{assert_one_error, run_obstacle, run_obstacle_env, solve_membrane, text};
 
 use obstacle_fem::output::{read_result, AttrValue, ResultFile};
 use std::path::{Path, PathBuf};
@@ -17,14 +17,7 @@ const SHELL: &str = "pipelines/scenes/naghdi-hypar.toml";
 /// The run fails with one `error:` line containing every expected word,
 /// without a panic, and `out` (and its companions) do not exist.
 fn assert_clear_failure(o: &Output, expected: &[&str], out: &Path, what: &str) {
-    let t = text(o);
-    assert!(!o.status.success(), "{what} should fail: {t}");
-    assert!(!t.contains("panicked"), "{what} panicked: {t}");
-    let errors: Vec<&str> = t.lines().filter(|l| l.starts_with("error: ")).collect();
-    assert_eq!(errors.len(), 1, "{what}: one error line expected: {t}");
-    for e in expected {
-        assert!(errors[0].contains(e), "{what}: message lacks `{e}`: {t}");
-    }
+    assert_one_error(o, expected, what);
     for ext in ["h5", "xdmf", "msh"] {
         assert!(
             !out.with_extension(ext).exists(),
@@ -422,20 +415,9 @@ fn unwritable_output_paths() {
 }
 
 fn solve_small(out: &Path, extra: &[&str]) -> Output {
-    let mut args = vec![
-        "solve",
-        MEMBRANE,
-        "--set",
-        "mesh.n=6",
-        "--set",
-        "output.plots=[]",
-        "--out",
-        out.to_str().unwrap(),
-    ];
-    for e in extra {
-        args.extend(["--set", e]);
-    }
-    run_obstacle(&args)
+    let mut sets = vec!["mesh.n=6", "output.plots=[]"];
+    sets.extend(extra);
+    solve_membrane(out, &sets)
 }
 
 #[test]

@@ -6,6 +6,7 @@
 pub mod blocks;
 pub mod compare;
 pub mod hdf5_io;
+pub mod transaction;
 pub mod xdmf;
 
 /// A scalar attribute value.
@@ -83,6 +84,7 @@ pub struct ResultFile {
 }
 
 pub use hdf5_io::{program_version, read_result, write_result};
+pub use transaction::OutputTransaction;
 pub use xdmf::{domain_xdmf_path, xdmf_path};
 
 impl std::fmt::Display for AttrValue {

@@ -120,6 +120,35 @@ pub fn run_obstacle(args: &[&str]) -> Output {
     run_obstacle_env(args, &[])
 }
 
+/// `obstacle solve` of the membrane disk scene into `out`, quietly, with
+/// `--set` for each of `sets`.
+pub fn solve_membrane(out: &Path, sets: &[&str]) -> Output {
+    let mut args = vec![
+        "solve",
+        "pipelines/scenes/obstacle-disk.toml",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    for s in sets {
+        args.extend(["--set", s]);
+    }
+    run_obstacle(&args)
+}
+
+/// A failed run: non-zero exit, no panic, exactly one `error:` line, which
+/// contains every word of `expected`.
+pub fn assert_one_error(o: &Output, expected: &[&str], what: &str) {
+    let t = text(o);
+    assert!(!o.status.success(), "{what} should fail: {t}");
+    assert!(!t.contains("panicked"), "{what} panicked: {t}");
+    let errors: Vec<&str> = t.lines().filter(|l| l.starts_with("error: ")).collect();
+    assert_eq!(errors.len(), 1, "{what}: one error line expected: {t}");
+    for e in expected {
+        assert!(errors[0].contains(e), "{what}: the error lacks `{e}`: {t}");
+    }
+}
+
 /// Standard output followed by standard error, as text.
 pub fn text(o: &Output) -> String {
     format!(
