@@ -36,6 +36,7 @@ use crate::scene::{
 };
 use crate::solvers::spectrum::estimate_dual_spectrum;
 use crate::space::{Element, Space};
+use crate::subprocess::{output_with_timeout, RunError};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -110,20 +111,22 @@ pub fn run_script(script: &Path, args: &[String]) -> Result<(Output, f64)> {
         ));
     }
     let start = Instant::now();
-    let out = Command::new(FREEFEM)
-        .env("FF_LOADPATH", &loadpath)
-        .env("OPENBLAS_NUM_THREADS", "1")
-        .env("OMP_NUM_THREADS", "1")
-        .args(["-nw", "-v", "0"])
-        .arg(script)
-        .args(args)
-        .output()
-        .map_err(|e| {
-            tool_error(
-                script,
-                format!("cannot run {FREEFEM} ({e}): install the Debian packages freefem++ libfreefem++ (`make deps`)"),
-            )
-        })?;
+    let out = output_with_timeout(
+        Command::new(FREEFEM)
+            .env("FF_LOADPATH", &loadpath)
+            .env("OPENBLAS_NUM_THREADS", "1")
+            .env("OMP_NUM_THREADS", "1")
+            .args(["-nw", "-v", "0"])
+            .arg(script)
+            .args(args),
+    )
+    .map_err(|e| match e {
+        RunError::Spawn(e) => tool_error(
+            script,
+            format!("cannot run {FREEFEM} ({e}): install the Debian packages freefem++ libfreefem++ (`make deps`)"),
+        ),
+        e => tool_error(script, e.describe(FREEFEM)),
+    })?;
     Ok((out, start.elapsed().as_secs_f64()))
 }
 

@@ -30,6 +30,7 @@ pub mod scene;
 pub mod solvers;
 pub mod space;
 pub mod study;
+pub mod subprocess;
 pub mod transfer;
 
 pub use error::{Error, Result};
