@@ -310,6 +310,10 @@ pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> Uzawa
 /// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled problem.
 pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
     let solver = &scene.solver;
+    // Assembled in Rust whatever α is: the checks of `pipeline::assemble`
+    // (finite data, no multiplier without free unknowns) hold for the twin too.
+    let system = crate::pipeline::setup_model(scene, mesh)?;
+    let problem = crate::pipeline::assemble(scene, mesh, system.as_ref())?;
     match (solver.alpha_factor, solver.alpha) {
         (None, Some(Alpha::Value(a))) => return Ok(a),
         (None, None) => {
@@ -322,8 +326,6 @@ pub fn resolve_alpha(scene: &Scene, mesh: &Mesh) -> Result<f64> {
         _ => {}
     }
     // α = auto or alpha_factor × 2/s_max: the Rust run's Lanczos estimate.
-    let system = crate::pipeline::setup_model(scene, mesh)?;
-    let problem = system.assemble(scene)?;
     let f = factorize_checked(
         &problem.matrix,
         problem.kind,

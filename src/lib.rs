@@ -17,6 +17,7 @@ pub mod bench;
 pub mod error;
 pub mod freefem;
 pub mod gmsh;
+pub mod guards;
 pub mod hard;
 pub mod linalg;
 pub mod mesh;

@@ -3,6 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
+use crate::guards;
 use crate::linalg::{factorize_checked, Solves};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::{ExactErrors, MembraneSystem};
@@ -59,9 +60,22 @@ impl RunSummary {
 /// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
 /// (writing `msh_path`).
 pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
-    if let Some(file) = &scene.mesh.file {
-        return Mesh::read_msh(&scene.resolve(file));
-    }
+    let mesh = match &scene.mesh.file {
+        Some(file) => Mesh::read_msh(&scene.resolve(file))?,
+        None => {
+            if let Some(e) = guards::estimate_before_meshing(scene) {
+                guards::check_memory(scene, &e, "before meshing")?;
+            }
+            gmsh_scene_mesh(scene, msh_path)?
+        }
+    };
+    guards::check_mesh_scale(&mesh)?;
+    let e = guards::estimate(scene, mesh.n_triangles() as f64);
+    guards::check_memory(scene, &e, &format!("the mesh {}", mesh.source.display()))?;
+    Ok(mesh)
+}
+
+fn gmsh_scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     let geo = scene.resolve(scene.mesh.geo.as_deref().expect("validated: geo or file"));
     let mut params: Vec<(String, f64)> = match (scene.mesh.n, scene.mesh.h) {
         (Some(n), _) => vec![("n".into(), n as f64)],
@@ -142,7 +156,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
-    let problem = system.assemble(scene)?;
+    let problem = assemble(scene, &mesh, system.as_ref())?;
 
     // The solver the scene names; without an obstacle, one linear solve.
     let start_lambda = nested_start(scene, &mesh)?;
@@ -194,6 +208,14 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         wall_seconds: start.elapsed().as_secs_f64(),
         result_file: out.to_path_buf(),
     })
+}
+
+/// The model's contact problem, checked: finite, every multiplier acting
+/// on a free unknown (`guards::check_assembled`).
+pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
+    let problem = system.assemble(scene)?;
+    guards::check_assembled(scene, mesh, &problem)?;
+    Ok(problem)
 }
 
 /// The scene's model set up on the mesh.

@@ -919,7 +919,10 @@ fn check_global_heaps(path: &Path) -> Res<()> {
                 .and_then(|v| (at + 16).checked_add(v))
                 .filter(|&next| next <= end)
                 .ok_or_else(|| {
-                    corrupt(start, &format!("object {index} of {object} bytes overruns the collection"))
+                    corrupt(
+                        start,
+                        &format!("object {index} of {object} bytes overruns the collection"),
+                    )
                 })?;
             at = padded;
         }
