@@ -635,7 +635,15 @@ impl Scene {
                 format!("must be between 1 and 1e8, got {}", s.max_iter),
             ));
         }
-        positive("solver.tol", s.tol)?;
+        // Tolerances are compared, never multiplied: any positive number.
+        let tolerance = |field: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(self.error(field, format!("must be a finite number > 0, got {v}")))
+            }
+        };
+        tolerance("solver.tol", s.tol)?;
         if s.nested {
             if !matches!(s.method, Method::ActiveSet | Method::DualAccelerated) {
                 return Err(self.error(
@@ -650,7 +658,7 @@ impl Scene {
                 ));
             }
         }
-        positive("solver.thesis_tol", s.thesis_tol)?;
+        tolerance("solver.thesis_tol", s.thesis_tol)?;
         if s.cold_start != ColdStartSpec::default() && s.method != Method::ActiveSet {
             return Err(self.error(
                 "solver.cold_start",
