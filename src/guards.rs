@@ -222,3 +222,30 @@ pub fn check_assembled(scene: &Scene, mesh: &Mesh, p: &ContactProblem) -> Result
     }
     Ok(())
 }
+
+/// A singular or non-finite factorisation met while solving, traced to the
+/// scene keys that build the matrix: an error naming them (the solver's
+/// message kept), instead of an anonymous "matrix is singular".
+pub fn name_matrix_inputs(scene: &Scene, e: Error) -> Error {
+    match e {
+        Error::Numerical {
+            stage,
+            measure,
+            reason,
+        } if measure.starts_with("factorisation") || measure == "matrix entries" => {
+            let field = match scene.model {
+                Model::Membrane => "mesh",
+                Model::Naghdi => "shell",
+            };
+            Error::Scene {
+                file: scene.source.clone(),
+                field: field.into(),
+                reason: format!(
+                    "{stage}: {measure}: {reason}; the matrix is built from {}: check their magnitudes and ratios",
+                    keys_of_matrix(scene)
+                ),
+            }
+        }
+        e => e,
+    }
+}

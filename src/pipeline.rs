@@ -166,7 +166,8 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         system.as_ref(),
         start_lambda,
         show_progress,
-    )?;
+    )
+    .map_err(|e| guards::name_matrix_inputs(scene, e))?;
 
     let mut data = system.results(scene, &problem, &report);
     let errors = if scene.output.errors {
