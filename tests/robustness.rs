@@ -94,23 +94,23 @@ fn p2_p1_without_free_unknowns_is_refused_or_solved_never_aborts() {
     assert!(common::field(&r, "u").iter().all(|v| *v == 0.0));
 }
 
+/// `solve` of the membrane scene with the overrides `sets`, no errors
+/// against the exact solution and no plots, into `out`.
+fn solve_membrane(out: &Path, sets: &[&str]) -> Output {
+    let mut args = vec!["solve", MEMBRANE, "--out", s(out)];
+    for set in sets
+        .iter()
+        .chain(&["output.errors=false", "output.plots=[]"])
+    {
+        args.extend(["--set", set]);
+    }
+    run_obstacle(&args)
+}
+
 /// A small membrane result file (n = 4, active set).
 fn small_result(dir: &Path, name: &str) -> PathBuf {
     let out = dir.join(name);
-    let o = run_obstacle(&[
-        "solve",
-        MEMBRANE,
-        "--set",
-        "mesh.n=4",
-        "--set",
-        "solver.method=active-set",
-        "--set",
-        "output.errors=false",
-        "--set",
-        "output.plots=[]",
-        "--out",
-        s(&out),
-    ]);
+    let o = solve_membrane(&out, &["mesh.n=4", "solver.method=active-set"]);
     assert!(o.status.success(), "{}", text(&o));
     out
 }
@@ -141,22 +141,8 @@ fn zero_load_with_the_obstacle_pushing_converges() {
     let dir = tempfile::tempdir().unwrap();
     for method in ["uzawa", "active-set"] {
         let out = dir.path().join(format!("{method}.h5"));
-        let o = run_obstacle(&[
-            "solve",
-            MEMBRANE,
-            "--set",
-            "load.g=0",
-            "--set",
-            "mesh.n=8",
-            "--set",
-            &format!("solver.method={method}"),
-            "--set",
-            "output.errors=false",
-            "--set",
-            "output.plots=[]",
-            "--out",
-            s(&out),
-        ]);
+        let method_set = format!("solver.method={method}");
+        let o = solve_membrane(&out, &["load.g=0", "mesh.n=8", &method_set]);
         let t = text(&o);
         assert!(o.status.success(), "{method}: {t}");
         assert!(t.contains("converged: true"), "{method}: {t}");
