@@ -195,7 +195,7 @@ pub fn run_case(
     if linear {
         let mesh = scene_mesh_in_temp(&scene)?;
         let system = setup_model(&scene, &mesh)?;
-        let problem = system.assemble()?;
+        let problem = crate::pipeline::assemble(&scene, &mesh, system.as_ref())?;
         // Peak RSS so far: meshing and assembly (coordinate triplets) alone.
         if let Some(kb) = peak_rss_kb() {
             f.push(("assembly_peak_rss_kb".into(), kb.to_string()));

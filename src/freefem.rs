@@ -38,6 +38,7 @@ use crate::scene::{
 use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space};
+use crate::subprocess::{output_with_timeout, RunError};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -112,20 +113,22 @@ pub fn run_script(script: &Path, args: &[String]) -> Result<(Output, f64)> {
         ));
     }
     let start = Instant::now();
-    let out = Command::new(FREEFEM)
-        .env("FF_LOADPATH", &loadpath)
-        .env("OPENBLAS_NUM_THREADS", "1")
-        .env("OMP_NUM_THREADS", "1")
-        .args(["-nw", "-v", "0"])
-        .arg(script)
-        .args(args)
-        .output()
-        .map_err(|e| {
-            tool_error(
-                script,
-                format!("cannot run {FREEFEM} ({e}): install the Debian packages freefem++ libfreefem++ (`make deps`)"),
-            )
-        })?;
+    let out = output_with_timeout(
+        Command::new(FREEFEM)
+            .env("FF_LOADPATH", &loadpath)
+            .env("OPENBLAS_NUM_THREADS", "1")
+            .env("OMP_NUM_THREADS", "1")
+            .args(["-nw", "-v", "0"])
+            .arg(script)
+            .args(args),
+    )
+    .map_err(|e| match e {
+        RunError::Spawn(e) => tool_error(
+            script,
+            format!("cannot run {FREEFEM} ({e}): install the Debian packages freefem++ libfreefem++ (`make deps`)"),
+        ),
+        e => tool_error(script, e.describe(FREEFEM)),
+    })?;
     Ok((out, start.elapsed().as_secs_f64()))
 }
 
@@ -826,8 +829,10 @@ pub fn run_freefem_scene(
     let mesh = scene_mesh(scene, &msh)?;
     // The Rust model of the same scene: α = auto comes from its problem, and
     // its result builder turns FreeFEM's coefficients into the result file.
+    // (Assembled in Rust whatever α is: the checks of `pipeline::assemble`,
+    // finite data and no multiplier without free unknowns, hold for the twin too.)
     let system = setup_model(scene, &mesh)?;
-    let problem = system.assemble()?;
+    let problem = crate::pipeline::assemble(scene, &mesh, system.as_ref())?;
     let plan = match &scene.obstacle {
         Some(_) => Some(uzawa_plan(
             scene,

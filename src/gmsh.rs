@@ -14,6 +14,7 @@
 //! `out_msh` is replaced atomically, and left untouched on failure.
 
 use crate::error::{Error, Result};
+use crate::subprocess::{output_with_timeout, RunError};
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -140,16 +141,12 @@ fn run_gmsh_with(
     let _on_signal = crate::output::transaction::RemoveOnSignal::new(tmp_dir.path());
     let tmp = tmp_dir.path().join(file_name);
 
-    let output = Command::new(program)
-        .args(gmsh_args(geo, &tmp, params))
-        .stdin(Stdio::null())
-        .output()
-        .map_err(|e| {
-            if e.kind() == std::io::ErrorKind::NotFound {
+    let output = output_with_timeout(Command::new(program).args(gmsh_args(geo, &tmp, params)))
+        .map_err(|e| match e {
+            RunError::Spawn(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 err(GMSH_NOT_FOUND.to_string())
-            } else {
-                err(format!("cannot run {}: {e}", program.to_string_lossy()))
             }
+            e => err(e.describe(&program.to_string_lossy())),
         })?;
     let log = log_tail(&output.stdout, &output.stderr);
     let has_error_line = [&output.stdout, &output.stderr].iter().any(|b| {

@@ -283,6 +283,14 @@ pub fn table(rows: &[HardRow]) -> String {
 /// case (CASE `*`: the override applies to all), prints the table, writes it to `<out_dir>/hard.md`; an error when a
 /// case does not do what it must.
 pub fn command(dir: &Path, out_dir: &Path, set: &[String]) -> Result<()> {
+    // One error for a missing folder, not one failed row per case.
+    if !dir.is_dir() {
+        return Err(Error::Scene {
+            file: dir.to_path_buf(),
+            field: "(folder)".into(),
+            reason: "no such folder of hard cases (default: pipelines/scenes/hard)".into(),
+        });
+    }
     let mut extra = Vec::new();
     for s in set {
         let (case, o) = s.split_once(':').ok_or_else(|| Error::Scene {

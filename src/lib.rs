@@ -17,6 +17,7 @@ pub mod bench;
 pub mod error;
 pub mod freefem;
 pub mod gmsh;
+pub mod guards;
 pub mod hard;
 pub mod linalg;
 pub mod mesh;
@@ -31,6 +32,7 @@ pub mod scene;
 pub mod solvers;
 pub mod space;
 pub mod study;
+pub mod subprocess;
 pub mod transfer;
 
 pub use error::{Error, Result};

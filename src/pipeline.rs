@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
+use crate::guards;
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
@@ -20,7 +21,7 @@ use crate::solvers::dual_accelerated::DualAcceleratedOptions;
 use crate::solvers::spectrum::SpectrumEstimate;
 use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
 use crate::solvers::uzawa_split::UzawaSplitOptions;
-use crate::solvers::{History, KktMeasures, SolveReport, SolverOptions};
+use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport, SolverOptions};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -69,9 +70,22 @@ impl RunSummary {
 /// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
 /// (writing `msh_path`).
 pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
-    if let Some(file) = &scene.mesh.file {
-        return Mesh::read_msh(&scene.resolve(file));
-    }
+    let mesh = match &scene.mesh.file {
+        Some(file) => Mesh::read_msh(&scene.resolve(file))?,
+        None => {
+            if let Some(e) = guards::estimate_before_meshing(scene) {
+                guards::check_memory(scene, &e, "before meshing")?;
+            }
+            gmsh_scene_mesh(scene, msh_path)?
+        }
+    };
+    guards::check_mesh_scale(&mesh)?;
+    let e = guards::estimate(scene, mesh.n_triangles() as f64);
+    guards::check_memory(scene, &e, &format!("the mesh {}", mesh.source.display()))?;
+    Ok(mesh)
+}
+
+fn gmsh_scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     let geo = scene.resolve(scene.mesh.geo.as_deref().expect("validated: geo or file"));
     let mut params: Vec<(String, f64)> = match (scene.mesh.n, scene.mesh.h) {
         (Some(n), _) => vec![("n".into(), n as f64)],
@@ -198,7 +212,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
-    let problem = system.assemble()?;
+    let problem = assemble(scene, &mesh, system.as_ref())?;
 
     // The solver the scene names; without an obstacle, one linear solve.
     let start_lambda = nested_start(scene, &mesh)?;
@@ -206,7 +220,8 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         &problem,
         &solver_options(&scene.solver, start_lambda, show_progress),
         &system.probes(),
-    )?;
+    )
+    .map_err(|e| guards::name_matrix_inputs(scene, e))?;
 
     let mut data = system.results(&problem, &report);
     data.scene_text = scene.text.clone();
@@ -256,6 +271,14 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     })
 }
 
+/// The model's contact problem, checked: finite, every multiplier acting
+/// on a free unknown (`guards::check_assembled`).
+pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
+    let problem = system.assemble()?;
+    guards::check_assembled(scene, mesh, &problem)?;
+    Ok(problem)
+}
+
 /// The scene's model set up on the mesh.
 pub fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSystem + 'm>> {
     Ok(match scene.model {
@@ -279,7 +302,7 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     coarse.mesh.n = Some(n / 2);
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
     let system = setup_model(&coarse, &coarse_mesh)?;
-    let problem = system.assemble()?;
+    let problem = assemble(&coarse, &coarse_mesh, system.as_ref())?;
     if problem.n_multipliers() != coarse_mesh.n_triangles() {
         return Ok(None); // not a P0 multiplier: no triangle-wise transfer
     }

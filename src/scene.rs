@@ -12,6 +12,10 @@ pub use crate::solvers::{DualNorm, StepForm, StopRule};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+/// The largest magnitude of a scene number (and the inverse, the smallest
+/// non-zero one): see `Scene::check_finite`.
+pub const MAGNITUDE_LIMIT: f64 = 1e100;
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scene {
@@ -94,6 +98,9 @@ pub struct MeshSpec {
     /// Physical names of the boundary parts where the Dirichlet condition holds
     /// (default: the whole boundary).
     pub dirichlet: Option<Vec<String>>,
+    /// The memory a run may use, in GB (default: half of MemAvailable);
+    /// a scene whose estimate is above it is refused (src/guards.rs).
+    pub memory_limit_gb: Option<f64>,
     /// Numbers passed to gmsh as `-setnumber NAME VALUE` (e.g. the corners
     /// x0, x1, y0, y1 of meshes/rectangle.geo).
     #[serde(default)]
@@ -446,15 +453,45 @@ impl Method {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(untagged)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Alpha {
     Value(f64),
     Keyword(AlphaKeyword),
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "kebab-case")]
+/// A number or "auto"; anything else gets one message saying so (serde's
+/// untagged enums say "did not match any variant of untagged enum Alpha").
+impl<'de> Deserialize<'de> for Alpha {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct AlphaVisitor;
+        impl serde::de::Visitor<'_> for AlphaVisitor {
+            type Value = Alpha;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(ALPHA_EXPECTED)
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> std::result::Result<Alpha, E> {
+                Ok(Alpha::Value(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> std::result::Result<Alpha, E> {
+                Ok(Alpha::Value(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> std::result::Result<Alpha, E> {
+                Ok(Alpha::Value(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> std::result::Result<Alpha, E> {
+                match v {
+                    "auto" => Ok(Alpha::Keyword(AlphaKeyword::Auto)),
+                    _ => Err(E::custom(format!("{ALPHA_EXPECTED}, got \"{v}\""))),
+                }
+            }
+        }
+        d.deserialize_any(AlphaVisitor)
+    }
+}
+
+const ALPHA_EXPECTED: &str = "must be a positive number or \"auto\"";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AlphaKeyword {
     Auto,
 }
@@ -553,9 +590,12 @@ impl Scene {
         let value = toml::Value::Table(table.clone());
         let mut scene: Scene = serde_path_to_error::deserialize(value).map_err(|e| {
             let field = e.path().to_string();
+            // toml appends "in `field`" lines: the field is named already.
+            let reason = e.into_inner().to_string();
+            let reason: Vec<&str> = reason.lines().filter(|l| !l.starts_with("in `")).collect();
             err(
                 if field == "." { "(top level)" } else { &field },
-                e.into_inner().to_string(),
+                reason.join(" ").trim().to_string(),
             )
         })?;
         scene.source = path.to_path_buf();
@@ -620,6 +660,9 @@ impl Scene {
         }
         if let Some(h) = m.h {
             positive("mesh.h", h)?;
+        }
+        if let Some(gb) = m.memory_limit_gb {
+            positive("mesh.memory_limit_gb", gb)?;
         }
         for (name, value) in &m.parameters {
             let field = format!("mesh.parameters.{name}");
@@ -689,7 +732,15 @@ impl Scene {
                 format!("must be between 1 and 1e8, got {}", s.max_iter),
             ));
         }
-        positive("solver.tol", s.tol)?;
+        // Tolerances are compared, never multiplied: any positive number.
+        let tolerance = |field: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(self.error(field, format!("must be a finite number > 0, got {v}")))
+            }
+        };
+        tolerance("solver.tol", s.tol)?;
         if s.nested {
             if !matches!(s.method, Method::ActiveSet | Method::DualAccelerated) {
                 return Err(self.error(
@@ -704,7 +755,7 @@ impl Scene {
                 ));
             }
         }
-        positive("solver.thesis_tol", s.thesis_tol)?;
+        tolerance("solver.thesis_tol", s.thesis_tol)?;
         if s.cold_start != ColdStartSpec::default() && s.method != Method::ActiveSet {
             return Err(self.error(
                 "solver.cold_start",
@@ -780,6 +831,19 @@ impl Scene {
         shell
             .check_material()
             .map_err(|(field, reason)| self.error(field, reason))?;
+        self.check_finite("shell.young", shell.young)?;
+        self.check_finite("shell.thickness", shell.thickness)?;
+        // The bending stiffness E ε³ scales K; it must be a number too.
+        self.check_finite("shell.thickness", shell.young * shell.thickness.powi(3))
+            .map_err(|_| {
+                self.error(
+                    "shell.thickness",
+                    format!(
+                        "the bending stiffness shell.young × shell.thickness³ = {:e} is outside [1e-100, 1e100]",
+                        shell.young * shell.thickness.powi(3)
+                    ),
+                )
+            })?;
         match (self.element, shell.rho) {
             (ElementPair::P1bP0, None) => {
                 return Err(self.error(
@@ -907,12 +971,20 @@ impl Scene {
         Ok(())
     }
 
+    /// Finite, and 0 or of a magnitude within [1/MAGNITUDE_LIMIT,
+    /// MAGNITUDE_LIMIT]: assembly and the solvers multiply a few data values
+    /// (E ε³, g × area, squares in norms), which must stay within f64.
     fn check_finite(&self, field: &str, v: f64) -> Result<()> {
-        if v.is_finite() {
-            Ok(())
-        } else {
-            Err(self.error(field, format!("must be a finite number, got {v}")))
+        if !v.is_finite() {
+            return Err(self.error(field, format!("must be a finite number, got {v}")));
         }
+        if v != 0.0 && !(1.0 / MAGNITUDE_LIMIT..=MAGNITUDE_LIMIT).contains(&v.abs()) {
+            return Err(self.error(
+                field,
+                format!("|{v:e}| is outside [1e-100, 1e100] (or 0): products of such numbers overflow f64"),
+            ));
+        }
+        Ok(())
     }
 
     /// The files a run reads (the scene, its `.geo` or mesh file): no

@@ -87,8 +87,16 @@ pub fn check_same_mesh(a: &ResultFile, pa: &Path, b: &ResultFile, pb: &Path) -> 
     Ok(())
 }
 
+/// max |v_i|, NaN when any entry is NaN (`f64::max` would skip it and a
+/// NaN in one file would compare equal to anything).
 fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
+    v.iter().fold(0.0f64, |m, x| {
+        if x.is_nan() || m.is_nan() {
+            f64::NAN
+        } else {
+            m.max(x.abs())
+        }
+    })
 }
 
 fn relative(diff: f64, scale_a: f64, scale_b: f64) -> f64 {
@@ -373,6 +381,14 @@ pub fn command(
     fields: Option<&[String]>,
     row: Option<&str>,
 ) -> Result<()> {
+    if !(rtol.is_finite() && rtol >= 0.0) {
+        // Every comparison with NaN is false: `--rtol nan` would pass anything.
+        return Err(Error::numerical(
+            "compare",
+            "--rtol",
+            format!("must be a finite number ≥ 0, got {rtol}"),
+        ));
+    }
     let (ra, rb) = (super::read_result(a)?, super::read_result(b)?);
     let rows = compare_results(&ra, a, &rb, b, fields)?;
     match row {

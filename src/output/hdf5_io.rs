@@ -599,8 +599,31 @@ fn is_integer(ds: &Dataset) -> bool {
     )
 }
 
+/// A dataset's declared size against the file's: a corrupted or hostile
+/// shape (1e9 entries in a 200 KB file) is refused before HDF5 allocates it.
+/// Unfiltered data is stored whole, so it cannot exceed the file; compressed
+/// data may, by a bounded ratio.
+fn check_declared_size(ds: &Dataset, path: &str) -> Res<()> {
+    const MAX_COMPRESSION: u64 = 1000;
+    let declared = (ds.size() as u64).saturating_mul(8);
+    let file_size = ds.file().map(|f| f.size()).unwrap_or(0);
+    let bound = if ds.filters().is_empty() {
+        file_size
+    } else {
+        file_size.saturating_mul(MAX_COMPRESSION)
+    };
+    if declared > bound {
+        return Err(format!(
+            "{path}: shape {:?} declares {declared} bytes, more than the file ({file_size} bytes) can hold: a corrupted or foreign file",
+            ds.shape()
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a numeric dataset as f64 (integers are converted).
 fn read_f64(ds: &Dataset, path: &str) -> Res<Vec<f64>> {
+    check_declared_size(ds, path)?;
     if !is_float(ds) && !is_integer(ds) {
         let t = ds
             .dtype()
@@ -624,6 +647,7 @@ fn read_indices<const C: usize>(ds: &Dataset, path: &str, bound: usize) -> Res<V
     if !is_integer(ds) {
         return Err(format!("{path}: expected integer indices"));
     }
+    check_declared_size(ds, path)?;
     let raw = ds
         .as_reader()
         .conversion(Conversion::Soft)
@@ -908,5 +932,59 @@ pub fn read_result(path: &Path) -> Result<ResultFile> {
                 "not a readable HDF5 file (truncated, or another format?): {e}"
             ))
         })?;
+    check_global_heaps(path).map_err(fail)?;
     read_layout(&file).map_err(fail)
+}
+
+/// The global heap collections ("GCOL", where variable-length strings live)
+/// are walked before HDF5 reads them: libhdf5 trusts a stored object size
+/// and copies that many bytes, so one flipped bit there crashes or hangs the
+/// reader (tests/parsers_prop.rs, corrupted files). Every object must lie
+/// inside its collection, and every collection inside the file.
+fn check_global_heaps(path: &Path) -> Res<()> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    let u64_at = |i: usize| -> Option<u64> {
+        Some(u64::from_le_bytes(bytes.get(i..i + 8)?.try_into().ok()?))
+    };
+    let corrupt = |at: usize, what: &str| {
+        format!("global heap collection at byte {at}: {what} (a corrupted file)")
+    };
+    let mut from = 0;
+    while let Some(k) = bytes[from..].windows(4).position(|w| w == b"GCOL") {
+        let start = from + k;
+        from = start + 4;
+        if bytes.get(start + 4) != Some(&1) {
+            continue; // not a version-1 collection: data that happens to read "GCOL"
+        }
+        let size = u64_at(start + 8).ok_or_else(|| corrupt(start, "truncated header"))?;
+        let end = usize::try_from(size)
+            .ok()
+            .and_then(|s| start.checked_add(s))
+            .filter(|&e| e <= bytes.len() && size >= 16)
+            .ok_or_else(|| corrupt(start, &format!("size {size} does not fit the file")))?;
+        // Objects: index (2), references (2), reserved (4), size (8), data
+        // padded to 8 bytes; index 0 is the free space and ends the list.
+        let mut at = start + 16;
+        while at + 16 <= end {
+            let index = u16::from_le_bytes([bytes[at], bytes[at + 1]]);
+            let object = u64_at(at + 8).unwrap_or(u64::MAX);
+            if index == 0 {
+                break;
+            }
+            let padded = object
+                .checked_add(7)
+                .map(|v| v / 8 * 8)
+                .and_then(|v| usize::try_from(v).ok())
+                .and_then(|v| (at + 16).checked_add(v))
+                .filter(|&next| next <= end)
+                .ok_or_else(|| {
+                    corrupt(
+                        start,
+                        &format!("object {index} of {object} bytes overruns the collection"),
+                    )
+                })?;
+            at = padded;
+        }
+    }
+    Ok(())
 }

@@ -14,7 +14,7 @@ pub struct KktMeasures {
     pub dual_min: f64,
     /// max_i |λ_i ḡ_i|.
     pub complementarity: f64,
-    /// ‖A x − F − Cᵀλ‖ over the primal rows, relative to ‖F‖.
+    /// ‖A x − F − Cᵀλ‖ over the primal rows, relative to max(‖F‖, ‖A x‖, ‖Cᵀλ‖).
     pub stationarity: f64,
     /// ‖(A x − F)‖ over the equality-multiplier rows (‖B U‖), absolute.
     pub tangency: f64,
@@ -38,6 +38,10 @@ pub fn kkt_measures(
 ) -> KktMeasures {
     let n_primal = problem.n_primal;
     let mut r = mat_vec(&problem.matrix, x);
+    // The scale of stationarity: the largest of its three terms ‖F‖, ‖A x‖,
+    // ‖Cᵀλ‖ (primal rows), so a zero load (the obstacle alone pushes) is
+    // not divided by ‖F‖ = 0; equal to ‖F‖ whenever the load dominates.
+    let mut force_scale = norm2(&r[..n_primal]).max(norm2(&problem.rhs[..n_primal]));
     for (ri, fi) in r.iter_mut().zip(&problem.rhs) {
         *ri -= fi;
     }
@@ -46,6 +50,7 @@ pub fn kkt_measures(
     let f_norm = norm2(&problem.rhs[..n_primal]).max(f64::MIN_POSITIVE);
     if let Some(c) = &problem.constraint {
         let ct_lambda = mat_t_vec(&c.matrix, lambda);
+        force_scale = force_scale.max(norm2(&ct_lambda[..n_primal.min(ct_lambda.len())]));
         for (ri, ci) in r.iter_mut().zip(&ct_lambda) {
             *ri -= ci;
         }
@@ -83,7 +88,7 @@ pub fn kkt_measures(
     } else {
         m.gap_scale = x_scale;
     }
-    m.stationarity = norm2(&r[..n_primal]) / f_norm;
+    m.stationarity = norm2(&r[..n_primal]) / force_scale.max(f64::MIN_POSITIVE);
     m.tangency = norm2(&r[n_primal..]);
     let tangency_rel = m.tangency / (f_norm + norm2(x));
     m.kkt = m.kkt.max(m.stationarity).max(tangency_rel);

@@ -1,0 +1,251 @@
+//! Guards of a run: what the machine can hold, and which input a
+//! non-finite number came from.
+//!
+//! - **Resources**: the unknowns and memory a scene needs are estimated from
+//!   (model, element, triangles); before meshing from `mesh.n` (structured
+//!   meshes have about 3 n² triangles), after meshing from the mesh itself.
+//!   An estimate above the limit (half of `MemAvailable` in /proc/meminfo,
+//!   or the scene's `mesh.memory_limit_gb`) is refused with both numbers.
+//! - **Degenerate problems**: a multiplier that acts on no free unknown (every
+//!   dof of its support on the Dirichlet boundary) is refused, naming the mesh.
+//! - **Tracing**: non-finite assembled entries are reported against the
+//!   scene keys (or the mesh) that feed them, never as "entry 0 is not finite".
+
+use crate::error::{Error, Result};
+use crate::mesh::Mesh;
+use crate::scene::{ElementPair, Model, Scene};
+use crate::solvers::ContactProblem;
+
+/// Bytes per unknown of a whole run (assembly, factorisation, iteration,
+/// output), calibrated on `make bench`/`make scale` (docs/work-precision.md):
+/// shell p1b-p0 n = 128, 378,631 unknowns, active set 1796 MB (4.7 KB each);
+/// n = 256, 1,510,919 unknowns, 7408 MB (4.9 KB). The membrane needs less.
+const BYTES_PER_UNKNOWN: f64 = 5.0e3;
+
+/// The part of `MemAvailable` a run may use by default.
+const MEMORY_FRACTION: f64 = 0.5;
+
+/// What a scene needs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    pub triangles: f64,
+    pub unknowns: f64,
+    pub bytes: f64,
+}
+
+/// Unknowns per triangle, counting V ≈ T/2 vertices and E ≈ 3T/2 edges:
+/// primal fields plus the contact multipliers.
+fn unknowns_per_triangle(model: Model, element: ElementPair) -> f64 {
+    match (model, element) {
+        // P1⊕B3 (V + T) and P0 (T); P2 (V + E) and P1 (V).
+        (Model::Membrane, _) => 2.5,
+        // 7 P1⊕B3 blocks and P0.
+        (Model::Naghdi, ElementPair::P1bP0) => 11.5,
+        // 5 P2⊕B3 blocks (V + E + T each) and P1; and the P2–P1 fallback.
+        (Model::Naghdi, _) => 15.5,
+    }
+}
+
+/// The estimate for a mesh of `triangles` triangles.
+pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
+    let unknowns = triangles * unknowns_per_triangle(scene.model, scene.element);
+    Estimate {
+        triangles,
+        unknowns,
+        bytes: unknowns * BYTES_PER_UNKNOWN,
+    }
+}
+
+/// The estimate before meshing: structured meshes (`mesh.n`) have about
+/// 3 n² triangles (diamond and rectangle 2 n², disk 2.9 n²). None for a
+/// target size `h` (the triangles depend on the domain, known after meshing).
+pub fn estimate_before_meshing(scene: &Scene) -> Option<Estimate> {
+    let n = scene.mesh.n? as f64;
+    Some(estimate(scene, 3.0 * n * n))
+}
+
+/// `MemAvailable` of /proc/meminfo in bytes; None where it cannot be read.
+fn memory_available() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
+}
+
+/// Refuses an estimate above the limit: `mesh.memory_limit_gb`, else half of
+/// `MemAvailable`. `when` says which estimate ("before meshing", ...).
+pub fn check_memory(scene: &Scene, e: &Estimate, when: &str) -> Result<()> {
+    let (limit, source) = match scene.mesh.memory_limit_gb {
+        Some(gb) => (gb * 1e9, "mesh.memory_limit_gb".to_string()),
+        None => match memory_available() {
+            Some(avail) => (
+                MEMORY_FRACTION * avail,
+                format!("{MEMORY_FRACTION} × MemAvailable ({:.1} GB)", avail / 1e9),
+            ),
+            None => return Ok(()),
+        },
+    };
+    if e.bytes <= limit {
+        return Ok(());
+    }
+    let field = if scene.mesh.n.is_some() {
+        "mesh.n"
+    } else {
+        "mesh.h"
+    };
+    Err(Error::Scene {
+        file: scene.source.clone(),
+        field: field.into(),
+        reason: format!(
+            "{when}: about {:.3e} triangles and {:.3e} unknowns need ~{:.3} GB, above the limit {:.3} GB = {source}; a coarser mesh, or set mesh.memory_limit_gb to allow more",
+            e.triangles,
+            e.unknowns,
+            e.bytes / 1e9,
+            limit / 1e9
+        ),
+    })
+}
+
+/// The length scales a mesh may have: coordinates up to 1e50 and edges
+/// down to 1e-50, so that areas, their squares and the stiffness (∝ 1/h²
+/// per area) stay within f64.
+const MESH_SCALE_LIMIT: f64 = 1e50;
+
+/// The mesh's coordinates and edge lengths lie within [1e-50, 1e50]; an
+/// error naming the mesh file otherwise.
+pub fn check_mesh_scale(mesh: &Mesh) -> Result<()> {
+    let extent = mesh
+        .vertices
+        .iter()
+        .fold(0.0f64, |m, p| m.max(p[0].abs()).max(p[1].abs()));
+    let shortest = (0..mesh.n_edges())
+        .map(|e| mesh.edge_length(e))
+        .fold(f64::INFINITY, f64::min);
+    if extent > MESH_SCALE_LIMIT || shortest < 1.0 / MESH_SCALE_LIMIT {
+        return Err(Error::mesh(
+            &mesh.source,
+            format!(
+                "coordinates up to {extent:e} and edges down to {shortest:e}: a mesh must lie within [1e-50, 1e50] in size (areas and stiffness overflow f64 beyond); rescale the geometry"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The scene keys that feed each part of the assembled problem.
+fn keys_of_matrix(scene: &Scene) -> &'static str {
+    match scene.model {
+        Model::Membrane => "the mesh coordinates",
+        Model::Naghdi => {
+            "shell.young, shell.thickness, shell.rho, shell.chart and the mesh coordinates"
+        }
+    }
+}
+fn keys_of_load(scene: &Scene) -> &'static str {
+    match scene.model {
+        Model::Membrane => "load.g",
+        Model::Naghdi => "load.f, load.edge",
+    }
+}
+
+/// The assembled problem is finite, and every multiplier acts on at least
+/// one free unknown; otherwise an error naming the scene keys and the mesh.
+pub fn check_assembled(scene: &Scene, mesh: &Mesh, p: &ContactProblem) -> Result<()> {
+    let blame = |field: &str, what: &str, keys: &str, k: usize, v: f64| {
+        Error::Scene {
+        file: scene.source.clone(),
+        field: field.into(),
+        reason: format!(
+            "the assembled {what} is not finite (entry {k} = {v}) on the mesh {}: {keys} overflow f64 (too large or too small in magnitude)",
+            mesh.source.display()
+        ),
+    }
+    };
+    let first_bad = |v: &[f64]| v.iter().position(|x| !x.is_finite()).map(|k| (k, v[k]));
+    if let Some((k, v)) = first_bad(p.matrix.val()) {
+        let field = match scene.model {
+            Model::Membrane => "mesh",
+            Model::Naghdi => "shell",
+        };
+        return Err(blame(
+            field,
+            "stiffness matrix",
+            keys_of_matrix(scene),
+            k,
+            v,
+        ));
+    }
+    if let Some((k, v)) = first_bad(&p.rhs) {
+        let field = match scene.model {
+            Model::Membrane => "load.g",
+            Model::Naghdi => "load",
+        };
+        return Err(blame(field, "load vector", keys_of_load(scene), k, v));
+    }
+    let Some(c) = &p.constraint else {
+        return Ok(());
+    };
+    if let Some((k, v)) = first_bad(&c.obstacle) {
+        return Err(blame(
+            "obstacle",
+            "obstacle vector",
+            "obstacle.height, obstacle.curvature",
+            k,
+            v,
+        ));
+    }
+    if let Some((k, v)) = first_bad(c.matrix.val()).or(first_bad(&c.weights)) {
+        return Err(blame(
+            "mesh",
+            "contact constraint",
+            "the mesh coordinates",
+            k,
+            v,
+        ));
+    }
+    let mut touches_free = vec![false; c.matrix.nrows()];
+    let m = c.matrix.as_ref();
+    for j in 0..m.ncols().min(p.n_primal) {
+        for (i, v) in m.row_idx_of_col(j).zip(m.val_of_col(j)) {
+            touches_free[i] |= *v != 0.0;
+        }
+    }
+    if let Some(i) = touches_free.iter().position(|t| !t) {
+        return Err(Error::mesh(
+            &mesh.source,
+            format!(
+                "element {}: contact multiplier {i} acts on no free unknown (its support lies on the Dirichlet boundary; {} free unknowns in all): the contact is decided by the boundary data alone; use a finer mesh or another element",
+                scene.element.name(),
+                p.n_primal
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// A singular or non-finite factorisation met while solving, traced to the
+/// scene keys that build the matrix: an error naming them (the solver's
+/// message kept), instead of an anonymous "matrix is singular".
+pub fn name_matrix_inputs(scene: &Scene, e: Error) -> Error {
+    match e {
+        Error::Numerical {
+            stage,
+            measure,
+            reason,
+        } if measure.starts_with("factorisation") || measure == "matrix entries" => {
+            let field = match scene.model {
+                Model::Membrane => "mesh",
+                Model::Naghdi => "shell",
+            };
+            Error::Scene {
+                file: scene.source.clone(),
+                field: field.into(),
+                reason: format!(
+                    "{stage}: {measure}: {reason}; the matrix is built from {}: check their magnitudes and ratios",
+                    keys_of_matrix(scene)
+                ),
+            }
+        }
+        e => e,
+    }
+}
