@@ -5,22 +5,14 @@
 //! there with a message about a factorisation, or to report nonsense.
 
 mod common;
-use common::{manifest_path, run_obstacle, scene_arg, set_args, text};
+use common::{manifest_path, solve_scene, text};
 
 /// Runs `solve` on a thesis scene with overrides; the output and whether a
 /// result file was written.
 fn solve(scene: &str, overrides: &[&str]) -> (std::process::Output, bool) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("r.h5");
-    let mut args = vec![
-        "solve".to_string(),
-        scene_arg(scene),
-        "--out".into(),
-        out.display().to_string(),
-    ];
-    args.extend(set_args(overrides));
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let o = run_obstacle(&args);
+    let o = solve_scene(scene, &out, overrides);
     (o, out.exists())
 }
 

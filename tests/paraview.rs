@@ -8,7 +8,7 @@
 //! installs it.
 
 mod common;
-use common::{manifest_path, run_obstacle, scene_arg, set_args, text};
+use common::{field, manifest_path, solve_scene, text};
 use obstacle_fem::output::{read_result, Location, ResultFile};
 use std::path::Path;
 use std::process::Command;
@@ -119,18 +119,21 @@ fn assert_fields_seen(result: &ResultFile, seen: &Seen) {
 }
 
 fn solve(scene: &str, dir: &Path, overrides: &[&str]) -> std::path::PathBuf {
-    let out = dir.join(format!("{}.h5", scene.replace('/', "-")));
-    let mut args = vec![
-        "solve".to_string(),
-        scene_arg(scene),
-        "--out".into(),
-        out.display().to_string(),
-    ];
-    args.extend(set_args(overrides));
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let o = run_obstacle(&args);
+    let out = dir.join(format!("{scene}.h5"));
+    let o = solve_scene(scene, &out, overrides);
     assert!(o.status.success(), "{}", text(&o));
     out
+}
+
+/// ParaView's bounds along each axis against `want(k)` = [min, max] of axis k.
+fn assert_bounds(seen: &Seen, want: impl Fn(usize) -> [f64; 2], what: &str) {
+    for k in 0..3 {
+        let (got, want) = ([seen.bounds[2 * k], seen.bounds[2 * k + 1]], want(k));
+        assert!(
+            close(got[0], want[0], 100.0) && close(got[1], want[1], 100.0),
+            "bounds[{k}]: ParaView {got:?}, {what} {want:?}"
+        );
+    }
 }
 
 #[test]
@@ -155,33 +158,18 @@ fn a_shell_is_a_3d_surface_that_warps_by_u() {
     // The 3D view: bounds of φ(x) at the vertices, z not flat.
     let seen = paraview_sees(&h5.with_extension("xdmf"), None);
     assert_fields_seen(&result, &seen);
-    for k in 0..3 {
-        let want = min_max(surface.iter().map(|p| p[k]));
-        let got = [seen.bounds[2 * k], seen.bounds[2 * k + 1]];
-        assert!(
-            close(got[0], want[0], 100.0) && close(got[1], want[1], 100.0),
-            "bounds[{k}]: ParaView {got:?}, /mesh/surface {want:?}"
-        );
-    }
+    assert_bounds(
+        &seen,
+        |k| min_max(surface.iter().map(|p| p[k])),
+        "/mesh/surface",
+    );
     assert!(seen.bounds[5] - seen.bounds[4] > 1.9, "{:?}", seen.bounds);
 
     // Warp By Vector u: the deformed shell, φ(x) + u(x).
     let warped = paraview_sees(&h5.with_extension("xdmf"), Some("vector:u"));
-    let u = &result
-        .data
-        .fields
-        .iter()
-        .find(|f| f.name == "u")
-        .unwrap()
-        .values;
-    for k in 0..3 {
-        let want = min_max(surface.iter().enumerate().map(|(v, p)| p[k] + u[3 * v + k]));
-        let got = [warped.bounds[2 * k], warped.bounds[2 * k + 1]];
-        assert!(
-            close(got[0], want[0], 100.0) && close(got[1], want[1], 100.0),
-            "warped bounds[{k}]: ParaView {got:?}, φ + u {want:?}"
-        );
-    }
+    let u = field(&result, "u");
+    let deformed = |k: usize| min_max(surface.iter().enumerate().map(|(v, p)| p[k] + u[3 * v + k]));
+    assert_bounds(&warped, deformed, "φ + u");
 
     // The parameter domain stays available, flat.
     let flat = paraview_sees(&h5.with_extension("domain.xdmf"), None);
@@ -206,14 +194,7 @@ fn a_membrane_warps_by_its_scalar_u() {
     assert_fields_seen(&result, &seen);
     assert_eq!([seen.bounds[4], seen.bounds[5]], [0.0, 0.0]);
     let warped = paraview_sees(&h5.with_extension("xdmf"), Some("scalar:u"));
-    let u = &result
-        .data
-        .fields
-        .iter()
-        .find(|f| f.name == "u")
-        .unwrap()
-        .values;
-    let want = min_max(u.iter().copied());
+    let want = min_max(field(&result, "u").iter().copied());
     // Warp By Scalar writes single-precision points: 1e-7 relative.
     let near = |a: f64, b: f64| (a - b).abs() <= 1e-7 * want[0].abs().max(want[1].abs());
     assert!(

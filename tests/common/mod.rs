@@ -123,13 +123,14 @@ pub fn run_obstacle(args: &[&str]) -> Output {
 /// `obstacle solve` of the membrane disk scene into `out`, quietly, with
 /// `--set` for each of `sets`.
 pub fn solve_membrane(out: &Path, sets: &[&str]) -> Output {
-    let mut args = vec![
-        "solve",
-        "pipelines/scenes/obstacle-disk.toml",
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ];
+    solve_scene("obstacle-disk", out, sets)
+}
+
+/// `obstacle solve` of `pipelines/scenes/<scene>.toml` into `out` with `--set`
+/// overrides, quiet; its output, whatever the exit status.
+pub fn solve_scene(scene: &str, out: &Path, sets: &[&str]) -> Output {
+    let scene = scene_arg(scene);
+    let mut args = vec!["solve", &scene, "--quiet", "--out", out.to_str().unwrap()];
     for s in sets {
         args.extend(["--set", s]);
     }
