@@ -40,7 +40,7 @@ display.SetScalarBarVisibility(view, True)
 lut = GetColorTransferFunction("lambda")
 lut.ApplyPreset("Cool to Warm", True)
 bar = GetScalarBar(lut, view)
-bar.Title = "contact pressure λ"
+bar.Title = "contact pressure"
 bar.TitleColor = [0.0, 0.0, 0.0]
 bar.LabelColor = [0.0, 0.0, 0.0]
 view.CameraPosition = [x1 + 0.6 * (x1 - x0), y0 - 0.9 * (y1 - y0), level + 0.5 * (x1 - x0)]
