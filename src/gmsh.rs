@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::subprocess::{output_with_timeout, RunError};
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 /// The gmsh executable, looked up on PATH.
 pub const GMSH: &str = "gmsh";
@@ -38,11 +38,8 @@ pub fn run_gmsh(geo: &Path, out_msh: &Path, params: &[(String, f64)]) -> Result<
 /// The version gmsh reports (`gmsh --version`), e.g. "4.8.4"; None if gmsh
 /// cannot be run.
 pub fn gmsh_version() -> Option<String> {
-    let out = Command::new(GMSH)
-        .arg("--version")
-        .stdin(Stdio::null())
-        .output()
-        .ok()?;
+    // Under the same time limit as meshing: a hung gmsh never hangs a run.
+    let out = crate::subprocess::output_with_timeout(Command::new(GMSH).arg("--version")).ok()?;
     if !out.status.success() {
         return None;
     }
