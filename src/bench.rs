@@ -951,7 +951,7 @@ fn study_scene_value(study: &Study, study_path: &Path, key: &str) -> Option<Stri
 fn study_points(path: &Path, out_dir: &Path, errors: &mut ErrorsOf) -> Result<Vec<WpPoint>> {
     let study = Study::load(path)?;
     eprintln!("study {} ({} runs)", study.name, study.runs().len());
-    let rows = run_study(path, out_dir, false)?;
+    let rows = run_study(path, out_dir, false, 1)?;
     let element0 = study_scene_value(&study, path, "element").unwrap_or_default();
     let method0 = study_scene_value(&study, path, "solver.method").unwrap_or_default();
     let mut pts = Vec::new();
@@ -1020,7 +1020,7 @@ pub fn work_precision(
         parts.push(("disk (errors against the exact solution)".into(), disk));
     }
     if let Some(r) = reference {
-        let rows = run_study(r, &runs, false)?;
+        let rows = run_study(r, &runs, false, 1)?;
         match rows.iter().find(|r| r.failure.is_none()) {
             None => {
                 let why: Vec<String> = rows.iter().filter_map(|r| r.failure.clone()).collect();

@@ -88,6 +88,9 @@ enum Command {
         out_dir: PathBuf,
         #[arg(long)]
         quiet: bool,
+        /// Runs at a time (they are independent); progress bars show only with 1.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+        jobs: u64,
     },
     /// Run the hard cases (pipelines/scenes/hard/) and print their table.
     Hard {
@@ -280,8 +283,9 @@ fn run(cli: Cli) -> Result<()> {
             study,
             out_dir,
             quiet,
+            jobs,
         } => {
-            let rows = run_study(&study, &out_dir, !quiet && progress_wanted())?;
+            let rows = run_study(&study, &out_dir, !quiet && progress_wanted(), jobs as usize)?;
             let spec = Study::load(&study)?;
             // The tables and plots appear together; the runs' files are each their own.
             let outputs =

@@ -170,51 +170,111 @@ impl Study {
     }
 }
 
-/// Runs every combination, writing results under `out_dir`.
-pub fn run_study(study_path: &Path, out_dir: &Path, show_progress: bool) -> Result<Vec<StudyRow>> {
+/// Runs every combination, writing results under `out_dir`, `jobs` runs at
+/// a time (at least one). The rows keep the grid's order whatever order the
+/// runs finish in; the first error (in grid order) stops the runs not yet
+/// started and is returned. Progress bars only show when `jobs` is 1.
+pub fn run_study(
+    study_path: &Path,
+    out_dir: &Path,
+    show_progress: bool,
+    jobs: usize,
+) -> Result<Vec<StudyRow>> {
     let study = Study::load(study_path)?;
     let scene_path = study_path
         .parent()
         .unwrap_or(Path::new("."))
         .join(&study.scene);
-    let mut rows = Vec::new();
-    for (i, labels) in study.runs().into_iter().enumerate() {
-        let mut overrides = study.set.clone();
-        overrides.extend(labels.iter().map(|(k, v)| format!("{k}={v}")));
-        let scene = Scene::load(&scene_path, &overrides)?;
-        let out: PathBuf = out_dir.join(format!("{}-{:03}.h5", study.name, i));
-        let (summary, failure) = match run_scene(&scene, &out, show_progress) {
-            Ok(summary) => (summary, None),
-            Err(e @ Error::Numerical { .. }) => {
-                eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
-                let summary = RunSummary {
-                    scene: scene.name.clone(),
-                    model: scene.model.name().into(),
-                    element: scene.element.name().into(),
-                    stop_reason: "failed".into(),
-                    ..Default::default()
-                };
-                (summary, Some(e.to_string()))
-            }
-            Err(e) => return Err(e),
-        };
-        if show_progress && failure.is_none() {
-            eprintln!(
-                "[{}] {} → {} iterations, kkt {:.2e}, {:.2}s",
-                i,
-                overrides.join(" "),
-                summary.iterations,
-                summary.measures.kkt,
-                summary.wall_seconds
-            );
-        }
-        rows.push(StudyRow {
-            labels,
-            summary,
-            failure,
-        });
+    let runs = study.runs();
+    let run = |i: usize| {
+        run_one(
+            &study,
+            &scene_path,
+            out_dir,
+            i,
+            &runs[i],
+            show_progress,
+            jobs,
+        )
+    };
+    if jobs <= 1 {
+        return (0..runs.len()).map(run).collect();
     }
-    Ok(rows)
+    // A shared queue of run indices; each worker takes the next until the
+    // queue is empty or a run has failed.
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let failed = std::sync::atomic::AtomicBool::new(false);
+    let results: std::sync::Mutex<Vec<Option<Result<StudyRow>>>> =
+        std::sync::Mutex::new((0..runs.len()).map(|_| None).collect());
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.min(runs.len()) {
+            scope.spawn(|| {
+                use std::sync::atomic::Ordering::SeqCst;
+                while !failed.load(SeqCst) {
+                    let i = next.fetch_add(1, SeqCst);
+                    if i >= runs.len() {
+                        break;
+                    }
+                    let result = run(i);
+                    if result.is_err() {
+                        failed.store(true, SeqCst);
+                    }
+                    // A worker that panicked poisons the lock; its panic ends the scope anyway.
+                    results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(result);
+                }
+            });
+        }
+    });
+    let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
+    // Runs not started after a failure are `None`; the first `Err` is returned.
+    results.into_iter().flatten().collect()
+}
+
+/// Run `i` of the study (overrides `labels` beyond `set`), into
+/// `<out_dir>/<study>-<i>.h5`. A numerical failure becomes a row.
+fn run_one(
+    study: &Study,
+    scene_path: &Path,
+    out_dir: &Path,
+    i: usize,
+    labels: &[(String, String)],
+    show_progress: bool,
+    jobs: usize,
+) -> Result<StudyRow> {
+    let mut overrides = study.set.clone();
+    overrides.extend(labels.iter().map(|(k, v)| format!("{k}={v}")));
+    let scene = Scene::load(scene_path, &overrides)?;
+    let out: PathBuf = out_dir.join(format!("{}-{:03}.h5", study.name, i));
+    let (summary, failure) = match run_scene(&scene, &out, show_progress && jobs <= 1) {
+        Ok(summary) => (summary, None),
+        Err(e @ Error::Numerical { .. }) => {
+            eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
+            let summary = RunSummary {
+                scene: scene.name.clone(),
+                model: scene.model.name().into(),
+                element: scene.element.name().into(),
+                stop_reason: "failed".into(),
+                ..Default::default()
+            };
+            (summary, Some(e.to_string()))
+        }
+        Err(e) => return Err(e),
+    };
+    if show_progress && failure.is_none() {
+        eprintln!(
+            "[{}] {} → {} iterations, kkt {:.2e}, {:.2}s",
+            i,
+            overrides.join(" "),
+            summary.iterations,
+            summary.measures.kkt,
+            summary.wall_seconds
+        );
+    }
+    Ok(StudyRow {
+        labels: labels.to_vec(),
+        summary,
+        failure,
+    })
 }
 
 /// Observed rate log(e_{k−1}/e_k)/log(h_{k−1}/h_k) between successive levels

@@ -191,14 +191,7 @@ fn study_file(dir: &Path, name_line: &str, sweeps: &str) -> PathBuf {
 }
 
 fn run_study(study: &Path) -> Output {
-    let out_dir = study.parent().unwrap().join("out");
-    run_obstacle(&[
-        "study",
-        study.to_str().unwrap(),
-        "--out-dir",
-        out_dir.to_str().unwrap(),
-        "--quiet",
-    ])
+    common::run_study(study, &study.parent().unwrap().join("out"), &[])
 }
 
 /// Study names become file names: `../../x`, NUL and 300 characters are

@@ -120,6 +120,20 @@ pub fn run_obstacle(args: &[&str]) -> Output {
     run_obstacle_env(args, &[])
 }
 
+/// `obstacle study STUDY --out-dir OUT_DIR --quiet` with `extra` arguments;
+/// its output, whatever the exit status.
+pub fn run_study(study: &Path, out_dir: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "study",
+        study.to_str().unwrap(),
+        "--out-dir",
+        out_dir.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend(extra);
+    run_obstacle(&args)
+}
+
 /// `obstacle solve` of the membrane disk scene into `out`, quietly, with
 /// `--set` for each of `sets`.
 pub fn solve_membrane(out: &Path, sets: &[&str]) -> Output {

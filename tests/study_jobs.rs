@@ -1,0 +1,115 @@
+//! `obstacle study --jobs N`: runs N at a time, the same tables as serial.
+
+mod common;
+
+use common::{assert_one_error, check_success, manifest_path, run_obstacle};
+use std::path::Path;
+
+/// The membrane-convergence study shrunk to mesh.n = 4, 8, 16 (six runs).
+fn small_study(dir: &Path, mesh_levels: &str) -> std::path::PathBuf {
+    let path = dir.join("study.toml");
+    let text = format!(
+        "name = \"jobs\"\nscene = {:?}\nconvergence_plot = true\n\
+         set = [\"solver.stop=kkt\", \"solver.tol=1e-10\", \"solver.alpha=\\\"auto\\\"\", \"output.plots=[]\"]\n\
+         [[sweep]]\nkey = \"element\"\nvalues = [\"p1b-p0\", \"p2-p1\"]\n\
+         [[sweep]]\nkey = \"mesh.n\"\nvalues = [{mesh_levels}]\n",
+        manifest_path("pipelines/scenes/obstacle-disk.toml")
+            .display()
+            .to_string()
+    );
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// `obstacle study STUDY --out-dir OUT_DIR --quiet --jobs JOBS`.
+fn run_study(study: &Path, out_dir: &Path, jobs: &str) -> std::process::Output {
+    common::run_study(study, out_dir, &["--jobs", jobs])
+}
+
+/// The study's Markdown table, CSV and convergence plots from `--jobs N`,
+/// its out dir removed from the CSV's result files and the wall-time column
+/// (the only one that may differ) blanked.
+fn study_outputs(study: &Path, out_dir: &Path, jobs: &str) -> (String, String, Vec<Vec<u8>>) {
+    let o = run_study(study, out_dir, jobs);
+    check_success(&format!("study --jobs {jobs}"), &o);
+    let md = std::fs::read_to_string(out_dir.join("jobs.md")).unwrap();
+    // `time` is the last column of the default table.
+    let md = md
+        .lines()
+        .map(|l| match l.strip_suffix(" |") {
+            Some(row) if l.starts_with("| ") => row.rsplit_once(" | ").unwrap().0.to_string(),
+            _ => l.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let csv = std::fs::read_to_string(out_dir.join("jobs.csv")).unwrap();
+    let time = csv
+        .lines()
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == "time")
+        .expect("a time column");
+    let csv = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let mut cells: Vec<&str> = l.split(',').collect();
+            cells[time] = "";
+            cells.join(",")
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+        .replace(out_dir.to_str().unwrap(), "OUT");
+    let plots = (0..2)
+        .map(|k| std::fs::read(out_dir.join(format!("jobs-convergence-{k}.png"))).unwrap())
+        .collect();
+    (md, csv, plots)
+}
+
+/// Two runs at a time give the serial study's table, CSV (but wall times)
+/// and plots, byte for byte, rows in the grid's order.
+#[test]
+fn two_jobs_give_the_serial_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = small_study(dir.path(), "4, 8, 16");
+    let serial = study_outputs(&study, &dir.path().join("serial"), "1");
+    let parallel = study_outputs(&study, &dir.path().join("parallel"), "2");
+    assert_eq!(serial.0, parallel.0);
+    assert_eq!(serial.1, parallel.1);
+    assert_eq!(serial.0.matches("| 16 |").count(), 2, "{}", serial.0);
+    assert_eq!(serial.1.lines().count(), 6, "{}", serial.1);
+    // Element and mesh level lead each CSV line (the element as TOML text).
+    let first = serial.1.lines().next().unwrap();
+    let last = serial.1.lines().last().unwrap();
+    assert!(
+        first.contains("p1b-p0") && first.split(',').nth(1) == Some("4"),
+        "{first}"
+    );
+    assert!(
+        last.contains("p2-p1") && last.split(',').nth(1) == Some("16"),
+        "{last}"
+    );
+    assert!(serial.2 == parallel.2, "the convergence plots differ");
+}
+
+/// A run with a bad override stops the parallel study with its error (one
+/// `error:` line naming the field), and no table is written.
+#[test]
+fn an_error_in_one_run_stops_a_parallel_study() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = small_study(dir.path(), "4, 0, 8");
+    let out_dir = dir.path().join("out");
+    let o = run_study(&study, &out_dir, "2");
+    assert_one_error(&o, &["obstacle-disk.toml", "mesh.n"], "mesh.n = 0");
+    assert!(!out_dir.join("jobs.md").exists());
+    assert!(!out_dir.join("jobs.csv").exists());
+}
+
+/// `--jobs 0` is refused by the command line.
+#[test]
+fn zero_jobs_are_refused() {
+    let o = run_obstacle(&["study", "x.toml", "--jobs", "0"]);
+    assert!(!o.status.success());
+    assert!(common::text(&o).contains("--jobs"), "{}", common::text(&o));
+}
