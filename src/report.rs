@@ -47,13 +47,7 @@ pub fn result_plots(result: &Path) -> Vec<PathBuf> {
 /// [`report_path`]) in one output transaction; returns the page's path.
 pub fn report_command(result: &Path, out: Option<&Path>) -> Result<PathBuf> {
     let file = read_result(result)?;
-    let page = out.map_or_else(|| report_path(result), Path::to_path_buf);
-    if page.extension().and_then(|e| e.to_str()) != Some("html") {
-        return Err(Error::output(
-            &page,
-            "the page's file name must end in .html",
-        ));
-    }
+    let page = page_name(out.map_or_else(|| report_path(result), Path::to_path_buf))?;
     let folder = page.parent().unwrap_or(Path::new(""));
     let label = page
         .file_stem()
@@ -127,6 +121,18 @@ pub fn render_report(
     Ok(s)
 }
 
+/// A page's path, refused unless it ends in `.html`.
+fn page_name(page: PathBuf) -> Result<PathBuf> {
+    if has_extension(&page, "html") {
+        Ok(page)
+    } else {
+        Err(Error::output(
+            &page,
+            "the page's file name must end in .html",
+        ))
+    }
+}
+
 /// An attribute as the page shows it: strings without quotes.
 fn attr_text(v: &AttrValue) -> String {
     match v {
@@ -189,13 +195,7 @@ const INDEX_FOLDERS: &[&str] = &["results", "studies"];
 /// (`.png`, `.svg`) and result (`.h5`, with its report page when written)
 /// under `build/results` and `build/studies`; returns the page's path.
 pub fn index_command(build: &Path, out: Option<&Path>) -> Result<PathBuf> {
-    let page = out.map_or_else(|| build.join("index.html"), Path::to_path_buf);
-    if page.extension().and_then(|e| e.to_str()) != Some("html") {
-        return Err(Error::output(
-            &page,
-            "the page's file name must end in .html",
-        ));
-    }
+    let page = page_name(out.map_or_else(|| build.join("index.html"), Path::to_path_buf))?;
     let folder = page.parent().unwrap_or(Path::new(""));
     let mut s = page_head("obstacle-fem: outputs of the main job");
     for sub in INDEX_FOLDERS {
@@ -268,28 +268,43 @@ fn listed_kind(path: &Path) -> Option<&'static str> {
 }
 
 /// One line about a listed file: the known name's line, else the study's
-/// title (the first line of `<stem>.md` beside it), else the file kind; a
-/// figure of a result says which plot of which result it is.
+/// title (the first line of `<stem>.md` beside it), else that of the study
+/// whose run or plot it is, else the file kind; a figure of a result says
+/// which plot of which result it is.
 fn explanation(path: &Path) -> String {
     let kind = listed_kind(path).unwrap_or("file");
     let name = path.file_name().unwrap_or_default().to_string_lossy();
     // The stem up to the first dot: `RESULT.u.png` belongs to `RESULT`.
     let (stem, rest) = name.split_once('.').unwrap_or((&name, ""));
-    let described = KNOWN
-        .iter()
-        .find(|(k, _)| *k == stem)
-        .map(|(_, line)| line.to_string())
-        .or_else(|| study_title(&path.with_file_name(format!("{stem}.md"))));
     let plot = rest
         .rsplit_once('.')
         .map(|(p, _)| p)
         .filter(|p| !p.is_empty());
-    match (kind, plot, described) {
-        ("figure", Some(p), Some(d)) => format!("figure {p}: {d}"),
+    if let Some(d) = describe(path, stem) {
+        return match (kind, plot) {
+            ("figure", Some(p)) => format!("figure {p}: {d}"),
+            _ => format!("{kind}: {d}"),
+        };
+    }
+    // A study's run or plot: `STUDY-000.h5`, `STUDY-convergence-0.png`.
+    let owner = stem
+        .match_indices('-')
+        .rev()
+        .find_map(|(i, _)| describe(path, &stem[..i]).map(|d| (&stem[i + 1..], d)));
+    match (kind, plot, owner) {
+        (kind, _, Some((part, d))) => format!("{kind} {part} of: {d}"),
         ("figure", Some(p), None) => format!("figure {p} of {stem}"),
-        (kind, _, Some(d)) => format!("{kind}: {d}"),
         (kind, _, None) => kind.to_string(),
     }
+}
+
+/// The line of a known name, else the title of `<name>.md` beside `path`.
+fn describe(path: &Path, name: &str) -> Option<String> {
+    KNOWN
+        .iter()
+        .find(|(k, _)| *k == name)
+        .map(|(_, line)| line.to_string())
+        .or_else(|| study_title(&path.with_file_name(format!("{name}.md"))))
 }
 
 /// The title of a study's Markdown table (its first line, `## TITLE`).

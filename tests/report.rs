@@ -146,6 +146,8 @@ fn index_links_every_table_figure_and_result_with_one_line_each() {
     .unwrap();
     std::fs::write(studies.join("my-study.csv"), "a\n1\n").unwrap();
     std::fs::write(studies.join("membrane-thesis.csv"), "a\n1\n").unwrap();
+    std::fs::write(studies.join("my-study-003.h5"), "").unwrap();
+    std::fs::write(studies.join("my-study-convergence-0.png"), "").unwrap();
     // A run under way (hidden staging folder) and other files are not listed.
     std::fs::create_dir_all(results.join(".x.obstacle-tmp-1-abc")).unwrap();
     std::fs::write(results.join(".x.obstacle-tmp-1-abc").join("x.h5"), "").unwrap();
@@ -159,14 +161,16 @@ fn index_links_every_table_figure_and_result_with_one_line_each() {
         "<li><a href=\"results/disk.history.png\">disk.history.png</a>: figure history of disk</li>",
         "<li><a href=\"studies/sub/my-study.md\">my-study.md</a>: table: A study of &lt;things&gt;</li>",
         "<li><a href=\"studies/sub/my-study.csv\">my-study.csv</a>: table: A study of &lt;things&gt;</li>",
+        "<li><a href=\"studies/sub/my-study-003.h5\">my-study-003.h5</a>: result 003 of: A study of &lt;things&gt;</li>",
+        "<li><a href=\"studies/sub/my-study-convergence-0.png\">my-study-convergence-0.png</a>: figure convergence-0 of: A study of &lt;things&gt;</li>",
         "<li><a href=\"studies/sub/membrane-thesis.csv\">membrane-thesis.csv</a>: table: membrane, both pairs, h = 0.8 … 0.1, α = 0.9, 1.9, auto (thesis Tables 5.1–5.4)</li>",
     ] {
         assert!(html.contains(line), "no line {line} in the index:\n{html}");
     }
     assert_eq!(
         html.matches("<li>").count(),
-        8,
-        "4 plots, 1 result, 3 tables: {html}"
+        10,
+        "4 plots, 1 result, 3 tables, a study's run and plot: {html}"
     );
     assert!(!html.contains("obstacle-tmp"), "a staging folder is listed");
     assert!(
