@@ -1,6 +1,7 @@
 # The pipeline: gmsh meshes → Rust FE + Uzawa → HDF5 results → tables.
 #   make          the thesis scenes end to end: membrane Tables 5.1–5.4, the
-#                 Naghdi shell Tables 5.5–5.8 and Fig. 5.10, with our numbers
+#                 Naghdi shell Tables 5.5–5.8 and Fig. 5.10, with our numbers;
+#                 ends with build/index.html (every table, figure and result)
 #   make test     the test suite
 #   make deps     install the Debian packages (gmsh, FreeFEM, HDF5, ...) if missing
 CARGO ?= cargo
@@ -8,9 +9,17 @@ BIN := target/release/obstacle
 BUILD := build
 STUDIES := $(BUILD)/studies
 
-.PHONY: all deps build test membrane-tables membrane-convergence naghdi naghdi-tables naghdi-refinement solve clean
+.PHONY: all deps build test membrane-tables membrane-convergence naghdi naghdi-tables naghdi-refinement solve clean index
 
+# The index comes last (a recipe, not a prerequisite: also last under make -j).
 all: membrane-tables membrane-convergence naghdi naghdi-tables naghdi-refinement
+	@$(MAKE) --no-print-directory index
+
+# A report page per result of build/results, then build/index.html linking
+# every table, figure and result under build/results and build/studies.
+index: build
+	for f in $(wildcard $(BUILD)/results/*.h5); do $(BIN) report $$f || exit 1; done
+	$(BIN) index $(BUILD)
 
 deps:
 	@bash .ci/install-deps.sh

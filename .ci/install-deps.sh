@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Installs the Debian packages the pipeline needs, if any is missing:
 # gmsh (meshing), FreeFEM with its plugins (cross-checks), libhdf5 (result
-# files), pkg-config and a C toolchain (for the hdf5 crate).
+# files), pkg-config and a C toolchain (for the hdf5 crate), ParaView and
+# Chromium (the tests render result files and report pages with them).
 # Uses sudo when not root. Rust (cargo ≥ 1.85) must already be installed.
 set -euo pipefail
 packages=(gmsh freefem++ libfreefem++ libhdf5-dev hdf5-tools pkg-config build-essential
-          paraview python3-paraview xvfb xauth)
+          paraview python3-paraview xvfb xauth chromium)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -28,6 +28,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod progress;
 pub mod quadrature;
+pub mod report;
 pub mod scene;
 pub mod solvers;
 pub mod space;

@@ -102,6 +102,21 @@ enum Command {
         #[arg(long, default_value = "build/hard")]
         out_dir: PathBuf,
     },
+    /// Write a result's HTML page: scene as run, mesh, solver and KKT measures, key numbers, plots.
+    Report {
+        result: PathBuf,
+        /// The page (default: RESULT.html beside the result).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Write the page linking every table, figure and result under BUILD/results and BUILD/studies.
+    Index {
+        #[arg(default_value = "build")]
+        build: PathBuf,
+        /// The page (default: BUILD/index.html).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Benchmarks and work–precision studies (`make bench`, `make scale`, `make study`).
     Bench {
         #[command(subcommand)]
@@ -279,6 +294,16 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Hard { dir, set, out_dir } => obstacle_fem::hard::command(&dir, &out_dir, &set),
         Command::Bench { command } => bench(command),
+        Command::Report { result, out } => {
+            let page = obstacle_fem::report::report_command(&result, out.as_deref())?;
+            println!("report: {}", page.display());
+            Ok(())
+        }
+        Command::Index { build, out } => {
+            let page = obstacle_fem::report::index_command(&build, out.as_deref())?;
+            println!("index: {}", page.display());
+            Ok(())
+        }
         Command::Study {
             study,
             out_dir,

@@ -331,7 +331,7 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
 
 /// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
 fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
-    let name = format!("{kind:?}").to_lowercase();
+    let name = kind.name();
     out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))
 }
 
@@ -347,9 +347,8 @@ fn write_plots(
 ) -> Result<()> {
     let figure = FigureData { data, errors };
     for &kind in &scene.output.plots {
-        let name = format!("{kind:?}").to_lowercase();
         let path = plot_path(scene, out, kind);
-        let title = format!("{}: {name} ({})", scene.name, scene.element.name());
+        let title = format!("{}: {} ({})", scene.name, kind.name(), scene.element.name());
         if kind != PlotKind::History {
             system.plot(kind, &path, &title, &figure)?;
         } else if !report.history.is_empty() {

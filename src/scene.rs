@@ -545,6 +545,24 @@ pub enum PlotFormat {
 }
 
 impl PlotKind {
+    /// Every kind, in the order of the declaration (the report page's order).
+    pub const ALL: [PlotKind; 9] = [
+        PlotKind::U,
+        PlotKind::U1,
+        PlotKind::U2,
+        PlotKind::U3,
+        PlotKind::Constraint,
+        PlotKind::Lambda,
+        PlotKind::Gap,
+        PlotKind::Contact,
+        PlotKind::History,
+    ];
+
+    /// The kind's name in scenes and in plot file names (`RESULT.<name>.png`).
+    pub fn name(self) -> String {
+        format!("{self:?}").to_lowercase()
+    }
+
     /// Plots that only the shell can draw.
     pub fn shell_only(self) -> bool {
         matches!(
