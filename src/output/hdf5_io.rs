@@ -489,13 +489,9 @@ pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
     let xdmf_text = xdmf::render(&file_name, mesh, data);
     // A shell's parameter domain gets its own companion (the main one is 3D).
     let domain = data.surface.as_ref().map(|_| {
-        let flat = ResultData {
-            surface: None,
-            ..data.clone()
-        };
         (
             xdmf::domain_xdmf_path(path),
-            xdmf::render(&file_name, mesh, &flat),
+            xdmf::render_domain(&file_name, mesh, data),
         )
     });
 

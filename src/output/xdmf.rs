@@ -69,6 +69,17 @@ fn data_item(out: &mut String, indent: &str, dims: &str, number_type: &str, refe
 /// name, no directory) holding `mesh` and `data.fields` in the docs/formulation.md §5 layout.
 /// The caller has validated the data (field lengths match the mesh).
 pub fn render(h5_file_name: &str, mesh: &Mesh, data: &ResultData) -> String {
+    render_view(h5_file_name, mesh, data, data.surface.is_some())
+}
+
+/// A shell's flat parameter-domain view (`FILE.domain.xdmf`): the same
+/// fields on the XY geometry of `/mesh/vertices`.
+pub fn render_domain(h5_file_name: &str, mesh: &Mesh, data: &ResultData) -> String {
+    render_view(h5_file_name, mesh, data, false)
+}
+
+/// The document on the 3D surface (`in_3d`) or on the parameter domain.
+fn render_view(h5_file_name: &str, mesh: &Mesh, data: &ResultData, in_3d: bool) -> String {
     let nv = mesh.vertices.len();
     let nt = mesh.triangles.len();
     let mut out = String::new();
@@ -89,9 +100,10 @@ pub fn render(h5_file_name: &str, mesh: &Mesh, data: &ResultData) -> String {
         &format!("{h5_file_name}:/mesh/triangles"),
     );
     out.push_str("      </Topology>\n");
-    let (geometry, dims, dataset) = match data.surface {
-        Some(_) => ("XYZ", format!("{nv} 3"), "/mesh/surface"),
-        None => ("XY", format!("{nv} 2"), "/mesh/vertices"),
+    let (geometry, dims, dataset) = if in_3d {
+        ("XYZ", format!("{nv} 3"), "/mesh/surface")
+    } else {
+        ("XY", format!("{nv} 2"), "/mesh/vertices")
     };
     let _ = writeln!(out, "      <Geometry GeometryType=\"{geometry}\">");
     data_item(
