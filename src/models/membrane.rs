@@ -33,6 +33,8 @@ pub struct MembraneSystem<'m> {
     pub load: f64,
     /// The obstacle u ≥ φ, when the scene has one.
     pub obstacle: Option<ObstacleSpec>,
+    /// φ_h: the obstacle's P1 interpolant at the vertices (with an obstacle).
+    pub phi: Option<Vec<f64>>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
 }
@@ -64,13 +66,17 @@ impl<'m> MembraneSystem<'m> {
             });
         }
         let numbering = DofNumbering::from_fixed_mask(&fixed);
-        if let Some(obstacle) = &scene.obstacle {
+        // φ_h, the P1 interpolant of the obstacle at the vertices.
+        let phi = scene
+            .obstacle
+            .as_ref()
+            .map(|obstacle| Space::new(mesh, Element::P1).interpolate(|x| obstacle.value(x)));
+        if let Some(phi) = &phi {
             // u = 0 on the Dirichlet parts: the obstacle must lie below 0 there.
-            let phi = Space::new(mesh, Element::P1).interpolate(|x| obstacle.value(x));
             check_obstacle_below_fixed_boundary(
                 mesh,
                 scene,
-                &phi,
+                phi,
                 tags.as_deref(),
                 "Dirichlet boundary (u = 0)",
             )?;
@@ -90,6 +96,7 @@ impl<'m> MembraneSystem<'m> {
             numbering,
             load: scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0),
             obstacle: scene.obstacle.clone(),
+            phi,
             simulated,
         })
     }
@@ -176,8 +183,7 @@ impl ModelSystem for MembraneSystem<'_> {
                 let (mut g_vec, weights) = match self.pair {
                     ElementPair::P1bP0 => {
                         // g_T = ∫_T φ_h with φ_h the P1 interpolant; w_T = |T|.
-                        let phi =
-                            Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
+                        let phi = self.phi.as_ref().expect("set up with the obstacle");
                         let areas: Vec<f64> = (0..self.mesh.n_triangles())
                             .map(|t| self.mesh.area(t))
                             .collect();
@@ -268,9 +274,8 @@ impl ModelSystem for MembraneSystem<'_> {
             "u".into(),
             crate::output::space_tag(self.u_space.element, 1),
         ));
-        if let (Some(obstacle), Some(c)) = (&self.obstacle, &problem.constraint) {
-            let phi = Space::new(self.mesh, Element::P1).interpolate(|x| obstacle.value(x));
-            data.fields.push(vertex_field("phi", phi));
+        if let (Some(phi), Some(c)) = (&self.phi, &problem.constraint) {
+            data.fields.push(vertex_field("phi", phi.clone()));
             contact_fields(
                 &mut data,
                 report.lambda.clone(),
