@@ -28,12 +28,11 @@ use crate::mesh::Mesh;
 use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, ShellLayout};
 use crate::models::naghdi::geometry::Chart;
 use crate::models::named_boundary_tags;
-use crate::output::{
-    domain_xdmf_path, write_result, xdmf_path, AttrValue, OutputTransaction, ResultData,
-};
+use crate::output::{write_result, AttrValue, OutputTransaction, ResultData};
 use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
-    Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, StepForm, StopRule,
+    Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, ShellSpec, StepForm,
+    StopRule,
 };
 use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -399,27 +398,15 @@ pub fn script_args(
                     "the FreeFEM script has no edge loads",
                 ));
             }
-            let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
             a.extend([
                 "-R".into(),
                 f(r),
                 "-offset".into(),
                 f(offset),
-                "-E".into(),
-                f(shell.young),
-                "-nu".into(),
-                f(shell.poisson),
-                "-eps".into(),
-                f(shell.thickness),
                 "-rho".into(),
                 f(shell.rho.unwrap_or(0.0)),
-                "-f1".into(),
-                f(load[0]),
-                "-f2".into(),
-                f(load[1]),
-                "-f3".into(),
-                f(load[2]),
             ]);
+            a.extend(material_and_load_args(scene, shell));
             a.extend(plane_level_args(scene)?);
         }
     }
@@ -484,27 +471,30 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
     for (key, value) in params {
         a.extend([key.into(), f(value)]);
     }
-    let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
-    a.extend([
-        "-E".into(),
-        f(shell.young),
-        "-nu".into(),
-        f(shell.poisson),
-        "-eps".into(),
-        f(shell.thickness),
-        "-f1".into(),
-        f(load[0]),
-        "-f2".into(),
-        f(load[1]),
-        "-f3".into(),
-        f(load[2]),
-    ]);
+    a.extend(material_and_load_args(scene, shell));
     let fix = psri_fix_spec(scene, mesh)?;
     if !fix.is_empty() {
         a.extend(["-fix".into(), fix]);
     }
     a.extend(plane_level_args(scene)?);
     Ok(a)
+}
+
+/// `-E -nu -eps` and the body force `-f1 -f2 -f3` of a shell scene, as both
+/// shell scripts take them.
+fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Vec<String> {
+    let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
+    [
+        ("-E", shell.young),
+        ("-nu", shell.poisson),
+        ("-eps", shell.thickness),
+        ("-f1", load[0]),
+        ("-f2", load[1]),
+        ("-f3", load[2]),
+    ]
+    .into_iter()
+    .flat_map(|(key, value)| [key.to_string(), format!("{value:e}")])
+    .collect()
 }
 
 /// `-level Z` of a shell scene's rigid plane (nothing without an obstacle).
@@ -817,11 +807,8 @@ pub fn run_freefem_scene(
     inputs.push(script.clone());
     // The result, its XDMF and the mesh appear together or not at all.
     let outputs = OutputTransaction::new(folder, stem, &inputs)?;
-    let staged_out = outputs.stage(out)?;
-    outputs.stage(&xdmf_path(out))?;
-    if scene.model == Model::Naghdi {
-        outputs.stage(&domain_xdmf_path(out))?;
-    }
+    // A shell's result has its 3D surface and a parameter-domain XDMF.
+    let staged_out = outputs.stage_result(out, scene.model == Model::Naghdi)?;
     let msh = match &scene.mesh.file {
         Some(f) => scene.resolve(f),
         None => outputs.stage(&out.with_extension("msh"))?,

@@ -10,10 +10,7 @@ use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::{ExactErrors, FigureData, ModelSystem};
 use crate::output::transaction::RemoveOnSignal;
-use crate::output::{
-    domain_xdmf_path, numeric_attr, write_result, xdmf_path, AttrValue, OutputTransaction,
-    ResultData,
-};
+use crate::output::{numeric_attr, write_result, AttrValue, OutputTransaction, ResultData};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
@@ -196,11 +193,8 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
     let outputs = OutputTransaction::new(dir, stem, &scene.input_files())?;
     // Staging checks each target now, before the run, not after it.
-    let staged_out = outputs.stage(out)?;
-    outputs.stage(&xdmf_path(out))?;
-    if scene.model == Model::Naghdi {
-        outputs.stage(&domain_xdmf_path(out))?; // the shell's flat parameter domain
-    }
+    // A shell's result has its 3D surface and a parameter-domain XDMF.
+    let staged_out = outputs.stage_result(out, scene.model == Model::Naghdi)?;
     for kind in &scene.output.plots {
         outputs.stage(&plot_path(scene, out, *kind))?;
     }

@@ -173,6 +173,18 @@ impl OutputTransaction {
         &self.folder
     }
 
+    /// Stages a result file `out` (FILE.h5) with the companions
+    /// `write_result` writes beside it: FILE.xdmf and, for a shell (a result
+    /// with a 3D surface), FILE.domain.xdmf. Returns the staged FILE.h5.
+    pub fn stage_result(&self, out: &Path, with_surface: bool) -> Result<PathBuf> {
+        let staged = self.stage(out)?;
+        self.stage(&super::xdmf_path(out))?;
+        if with_surface {
+            self.stage(&super::domain_xdmf_path(out))?;
+        }
+        Ok(staged)
+    }
+
     /// The path at which to write the file that becomes `target` on commit.
     /// Refuses a target outside the transaction's folder, an input of the
     /// run, a directory, or a file of another kind.
