@@ -9,8 +9,8 @@ use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
 use obstacle_fem::scene::{command_line_overrides, Scene};
 use obstacle_fem::study::{
-    csv_table, history_tables, markdown_table, reference_study, run_study, write_convergence_plots,
-    write_work_precision, Study,
+    csv_table, history_tables, markdown_table, reference_study, rows_from_results, run_study,
+    write_convergence_plots, write_snakefile, write_work_precision, Study,
 };
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -40,6 +40,11 @@ enum Command {
         /// No progress display.
         #[arg(long)]
         quiet: bool,
+        /// For workflow engines: a numerical failure (divergence, singular
+        /// matrix, ...) writes its message to this file and exits 0; success
+        /// removes it. Other errors still fail.
+        #[arg(long, value_name = "FILE")]
+        failure_marker: Option<PathBuf>,
     },
     /// Mesh a scene's geometry with gmsh (MSH 2.2) and validate the mesh.
     Mesh {
@@ -91,6 +96,12 @@ enum Command {
         /// Runs at a time (they are independent); progress bars show only with 1.
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
         jobs: u64,
+        /// Solve nothing: write OUT_DIR/Snakefile, one rule per run, then the tables.
+        #[arg(long, value_enum, conflicts_with = "from_results")]
+        workflow: Option<Workflow>,
+        /// Solve nothing: the tables and plots from the runs' result files (or failure markers).
+        #[arg(long)]
+        from_results: bool,
     },
     /// Run the hard cases (pipelines/scenes/hard/) and print their table.
     Hard {
@@ -122,6 +133,12 @@ enum Command {
         #[command(subcommand)]
         command: BenchCommand,
     },
+}
+
+/// The workflow engines `study --workflow` writes for.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Workflow {
+    Snakemake,
 }
 
 /// The `bench` subcommands.
@@ -222,11 +239,30 @@ fn run(cli: Cli) -> Result<()> {
             set,
             out,
             quiet,
+            failure_marker,
         } => {
             let scene = Scene::load(&scene, &command_line_overrides(&set))?;
             let out =
                 out.unwrap_or_else(|| PathBuf::from(format!("build/results/{}.h5", scene.name)));
-            let s = run_scene(&scene, &out, !quiet)?;
+            let s = match (run_scene(&scene, &out, !quiet), &failure_marker) {
+                (Err(e @ Error::Numerical { .. }), Some(marker)) => {
+                    write_failure_marker(&scene, marker, &e.to_string())?;
+                    println!("{}: failed: {e} → {}", scene.name, marker.display());
+                    return Ok(());
+                }
+                (result, marker) => {
+                    let s = result?;
+                    if let Some(marker) = marker.as_deref().filter(|m| m.exists()) {
+                        std::fs::remove_file(marker).map_err(|e| {
+                            Error::output(
+                                marker,
+                                format!("cannot remove the old failure marker: {e}"),
+                            )
+                        })?;
+                    }
+                    s
+                }
+            };
             println!(
                 "{}: {} on {} triangles ({} dofs), {} iterations, stop: {}, converged: {}, KKT {:.3e}, {:.3}s → {}",
                 s.scene,
@@ -309,8 +345,26 @@ fn run(cli: Cli) -> Result<()> {
             out_dir,
             quiet,
             jobs,
+            workflow,
+            from_results,
         } => {
-            let rows = run_study(&study, &out_dir, !quiet && progress_wanted(), jobs as usize)?;
+            if let Some(Workflow::Snakemake) = workflow {
+                let exe = std::env::current_exe().map_err(|e| {
+                    Error::output("obstacle", format!("cannot find this program's path: {e}"))
+                })?;
+                let snakefile = write_snakefile(&study, &out_dir, &exe)?;
+                println!(
+                    "workflow: {} (run `snakemake -j N` in {})",
+                    snakefile.display(),
+                    out_dir.display()
+                );
+                return Ok(());
+            }
+            let rows = if from_results {
+                rows_from_results(&study, &out_dir)?
+            } else {
+                run_study(&study, &out_dir, !quiet && progress_wanted(), jobs as usize)?
+            };
             let spec = Study::load(&study)?;
             // The tables and plots appear together; the runs' files are each their own.
             let outputs =
@@ -365,6 +419,17 @@ fn mesh_command(scene: &Scene, out: &Path) -> Result<Mesh> {
     }
     outputs.commit()?;
     Ok(mesh)
+}
+
+/// `solve --failure-marker`: the error of a run that failed numerically, in
+/// its own output transaction (never over an input of the scene).
+fn write_failure_marker(scene: &Scene, marker: &Path, error: &str) -> Result<()> {
+    let folder = marker.parent().unwrap_or(Path::new(""));
+    let stem = marker.file_stem().and_then(|s| s.to_str()).unwrap_or("run");
+    let outputs = OutputTransaction::new(folder, stem, &scene.input_files())?;
+    write_text(&outputs.stage(marker)?, &format!("{error}\n"))?;
+    outputs.commit()?;
+    Ok(())
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {

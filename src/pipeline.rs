@@ -62,7 +62,111 @@ impl RunSummary {
     pub fn attr(&self, name: &str) -> Option<f64> {
         numeric_attr(&self.attrs, name)
     }
+
+    /// The summary of a run read back from its result file (root and
+    /// `/solver` attributes, `/solver/history`, the mesh): what [`run_scene`]
+    /// returned, but `wall_seconds`, which is the run's time up to writing the
+    /// file (`/solver/run_seconds`), and what the file does not hold: the
+    /// measures' `gap_scale` and the Lanczos step count (both 0).
+    pub fn from_result(path: &Path) -> Result<RunSummary> {
+        let file = crate::output::read_result(path)?;
+        let d = &file.data;
+        let missing = |group: &str, name: &str| {
+            Error::output(path, format!("no {group} attribute `{name}` (not a result of `obstacle solve`, or one written before `{RUN_SECONDS}` was recorded: rerun it)"))
+        };
+        let attr = |attrs: &[(String, AttrValue)], group: &str, name: &str| {
+            attrs
+                .iter()
+                .find(|(k, _)| k == name)
+                .map(|(_, v)| v.clone())
+                .ok_or_else(|| missing(group, name))
+        };
+        let text = |attrs: &[(String, AttrValue)], group: &str, name: &str| match attr(
+            attrs, group, name,
+        )? {
+            AttrValue::Str(s) => Ok(s),
+            other => Ok(other.to_string()),
+        };
+        let number = |attrs: &[(String, AttrValue)], group: &str, name: &str| {
+            numeric_attr(attrs, name).ok_or_else(|| missing(group, name))
+        };
+        let (root, solver) = (d.root_attrs.as_slice(), d.solver_attrs.as_slice());
+        let scene: toml::Table = d
+            .scene_text
+            .parse()
+            .map_err(|e| Error::output(path, format!("root attribute `scene` is not TOML: {e}")))?;
+        let algorithm = text(solver, "/solver", "algorithm")?;
+        let measures = KktMeasures {
+            penetration: number(solver, "/solver", "penetration")?,
+            dual_min: number(solver, "/solver", "dual_min")?,
+            complementarity: number(solver, "/solver", "complementarity")?,
+            stationarity: number(solver, "/solver", "stationarity")?,
+            tangency: number(solver, "/solver", "tangency")?,
+            active: number(solver, "/solver", "active")? as usize,
+            gap_scale: 0.0,
+            kkt: number(solver, "/solver", "kkt")?,
+        };
+        // Uzawa alone has a fixed step and its Lanczos estimate (`SolveReport::alpha`).
+        let uzawa = algorithm == "uzawa";
+        let spectrum = match (
+            numeric_attr(solver, "s_max_estimate"),
+            numeric_attr(solver, "s_min_ritz"),
+        ) {
+            (Some(s_max), Some(s_min)) => Some(SpectrumEstimate {
+                s_max,
+                s_min,
+                steps: 0,
+            }),
+            _ => None,
+        };
+        let errors = match numeric_attr(root, "error_l2_u") {
+            Some(l2) => Some(ExactErrors {
+                l2,
+                h1: number(root, "root", "error_h1_u")?,
+                lambda_l2: number(root, "root", "error_l2_lambda")?,
+                contact_radius: number(root, "root", "contact_radius")?,
+                exact_contact_radius: number(root, "root", "exact_contact_radius")?,
+            }),
+            None => None,
+        };
+        let solver_seconds = number(solver, "/solver", "wall_seconds")?;
+        let factor_seconds = number(solver, "/solver", "factor_seconds")?;
+        Ok(RunSummary {
+            scene: scene
+                .get("name")
+                .and_then(|n| n.as_str())
+                .ok_or_else(|| Error::output(path, "root attribute `scene` has no `name`"))?
+                .to_string(),
+            model: text(root, "root", "model")?,
+            element: text(root, "root", "element")?,
+            h: number(root, "root", "h")?,
+            n_vertices: file.vertices.len(),
+            n_triangles: file.triangles.len(),
+            n_dofs: number(root, "root", "n_dofs")? as usize,
+            iterations: number(solver, "/solver", "iterations")? as usize,
+            converged: matches!(attr(solver, "/solver", "converged")?, AttrValue::Bool(true)),
+            stop_reason: text(solver, "/solver", "stop_reason")?,
+            last_dual_step: number(solver, "/solver", "dual_step")?,
+            measures,
+            alpha: numeric_attr(solver, "alpha").filter(|_| uzawa),
+            spectrum: spectrum.filter(|_| uzawa),
+            errors,
+            attrs: d.root_attrs.clone(),
+            history: History {
+                columns: d.history.clone(),
+            },
+            solver_seconds,
+            factor_seconds,
+            solve_seconds: solver_seconds - factor_seconds,
+            wall_seconds: number(solver, "/solver", RUN_SECONDS)?,
+            result_file: path.to_path_buf(),
+            algorithm,
+        })
+    }
 }
+
+/// The `/solver` attribute with the run's wall time up to writing its result.
+const RUN_SECONDS: &str = "run_seconds";
 
 /// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
 /// (writing `msh_path`).
@@ -228,6 +332,11 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         data.root_attrs.extend(e.attrs());
     }
     record_solver(&mut data, &scene.solver, &report);
+    // The run's time so far, for tables built later from the file (`study --from-results`).
+    data.solver_attrs.push((
+        RUN_SECONDS.into(),
+        AttrValue::F64(start.elapsed().as_secs_f64()),
+    ));
     write_result(&staged_out, &mesh, &data)?;
     write_plots(
         scene,

@@ -148,6 +148,26 @@ impl Study {
         Ok(study)
     }
 
+    /// The study's scene file (`scene` is relative to the study file).
+    pub fn scene_path(&self, study_path: &Path) -> PathBuf {
+        study_path
+            .parent()
+            .unwrap_or(Path::new("."))
+            .join(&self.scene)
+    }
+
+    /// The scene overrides of a run: the study's `set`, then the run's labels.
+    fn overrides(&self, labels: &[(String, String)]) -> Vec<String> {
+        let mut overrides = self.set.clone();
+        overrides.extend(labels.iter().map(|(k, v)| format!("{k}={v}")));
+        overrides
+    }
+
+    /// Where run `i` writes its result: `<out_dir>/<study>-<i>.h5`.
+    pub fn result_path(&self, out_dir: &Path, i: usize) -> PathBuf {
+        out_dir.join(format!("{}-{:03}.h5", self.name, i))
+    }
+
     /// The override lists of all runs, outer sweeps first.
     pub fn runs(&self) -> Vec<Vec<(String, String)>> {
         let mut runs: Vec<Vec<(String, String)>> = vec![vec![]];
@@ -181,10 +201,7 @@ pub fn run_study(
     jobs: usize,
 ) -> Result<Vec<StudyRow>> {
     let study = Study::load(study_path)?;
-    let scene_path = study_path
-        .parent()
-        .unwrap_or(Path::new("."))
-        .join(&study.scene);
+    let scene_path = study.scene_path(study_path);
     let runs = study.runs();
     let run = |i: usize| {
         run_one(
@@ -241,22 +258,14 @@ fn run_one(
     show_progress: bool,
     jobs: usize,
 ) -> Result<StudyRow> {
-    let mut overrides = study.set.clone();
-    overrides.extend(labels.iter().map(|(k, v)| format!("{k}={v}")));
+    let overrides = study.overrides(labels);
     let scene = Scene::load(scene_path, &overrides)?;
-    let out: PathBuf = out_dir.join(format!("{}-{:03}.h5", study.name, i));
+    let out = study.result_path(out_dir, i);
     let (summary, failure) = match run_scene(&scene, &out, show_progress && jobs <= 1) {
         Ok(summary) => (summary, None),
         Err(e @ Error::Numerical { .. }) => {
             eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
-            let summary = RunSummary {
-                scene: scene.name.clone(),
-                model: scene.model.name().into(),
-                element: scene.element.name().into(),
-                stop_reason: "failed".into(),
-                ..Default::default()
-            };
-            (summary, Some(e.to_string()))
+            (failed_summary(&scene), Some(e.to_string()))
         }
         Err(e) => return Err(e),
     };
@@ -275,6 +284,70 @@ fn run_one(
         summary,
         failure,
     })
+}
+
+/// The summary of a run that failed numerically: its scene, "failed".
+fn failed_summary(scene: &Scene) -> RunSummary {
+    RunSummary {
+        scene: scene.name.clone(),
+        model: scene.model.name().into(),
+        element: scene.element.name().into(),
+        stop_reason: "failed".into(),
+        ..Default::default()
+    }
+}
+
+/// The failure marker of a result file: `FILE.failed` beside `FILE.h5`,
+/// holding the error of a run that failed numerically (`solve --failure-marker`).
+pub fn failure_marker_path(result: &Path) -> PathBuf {
+    result.with_extension("failed")
+}
+
+/// The rows of a study whose runs were solved elsewhere (`--from-results`,
+/// the last rule of a workflow): each run's summary read back from its
+/// result file, or its failure from its marker when that is newer (a failed
+/// rerun keeps the older result file). Nothing is solved; a run with
+/// neither file is an error naming the result file.
+pub fn rows_from_results(study_path: &Path, out_dir: &Path) -> Result<Vec<StudyRow>> {
+    let study = Study::load(study_path)?;
+    let scene_path = study.scene_path(study_path);
+    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    study
+        .runs()
+        .into_iter()
+        .enumerate()
+        .map(|(i, labels)| {
+            let scene = Scene::load(&scene_path, &study.overrides(&labels))?;
+            let out = study.result_path(out_dir, i);
+            let marker = failure_marker_path(&out);
+            let (result, failed) = (modified(&out), modified(&marker));
+            let (summary, failure) = match (result, failed) {
+                (_, Some(failed)) if result.is_none_or(|r| failed >= r) => {
+                    let text = std::fs::read_to_string(&marker).map_err(|e| {
+                        Error::output(&marker, format!("cannot read the failure marker: {e}"))
+                    })?;
+                    let text = text.strip_suffix('\n').unwrap_or(&text).to_string();
+                    (failed_summary(&scene), Some(text))
+                }
+                (Some(_), _) => (RunSummary::from_result(&out)?, None),
+                (None, _) => {
+                    return Err(Error::output(
+                        &out,
+                        format!(
+                            "run {i} of the study ({}) has no result file and no failure marker {}: run the workflow first",
+                            study.overrides(&labels).join(" "),
+                            marker.display()
+                        ),
+                    ))
+                }
+            };
+            Ok(StudyRow {
+                labels,
+                summary,
+                failure,
+            })
+        })
+        .collect()
 }
 
 /// Observed rate log(e_{k−1}/e_k)/log(h_{k−1}/h_k) between successive levels
@@ -795,4 +868,124 @@ pub fn write_convergence_plots(
         }
     }
     Ok(files)
+}
+
+/// Writes `<out_dir>/Snakefile`: the study as a Snakemake workflow. One rule
+/// per run runs `obstacle solve` on the run's scene with the study's
+/// overrides into the result file the in-process study writes
+/// ([`Study::result_path`]); a numerical failure leaves its marker
+/// ([`failure_marker_path`]) instead of failing the workflow. The last rule
+/// builds the tables and plots from the files (`--from-results`). Paths are
+/// absolute; the binary is `obstacle` (this one) unless Snakemake's
+/// `--config obstacle=PATH` names another. Every run's scene is loaded
+/// first, so a bad override is refused here, not on the cluster.
+pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Result<PathBuf> {
+    let study = Study::load(study_path)?;
+    if study.name.contains(['{', '}']) {
+        return Err(Error::Scene {
+            file: study_path.to_path_buf(),
+            field: "name".into(),
+            reason: "`{` and `}` are Snakemake wildcards: a study run as a workflow cannot have them in its name".into(),
+        });
+    }
+    let scene_path = study.scene_path(study_path);
+    let runs = study.runs();
+    for labels in &runs {
+        Scene::load(&scene_path, &study.overrides(labels))?;
+    }
+    let outputs = OutputTransaction::new(
+        out_dir,
+        "Snakefile",
+        &[study_path.to_path_buf(), scene_path.clone()],
+    )?;
+    let absolute = |p: &Path| {
+        p.canonicalize()
+            .map_err(|e| Error::output(p, format!("cannot resolve the path: {e}")))
+    };
+    let (study_abs, scene_abs, dir_abs) = (
+        absolute(study_path)?,
+        absolute(&scene_path)?,
+        absolute(out_dir)?,
+    );
+    let path_str = |p: &Path| py_str(&p.to_string_lossy());
+    let logs: Vec<String> = (0..runs.len())
+        .map(|i| py_str(&format!("{}-{i:03}.log", study.name)))
+        .collect();
+    let tables = [
+        py_str(&format!("{}.md", study.name)),
+        py_str(&format!("{}.csv", study.name)),
+    ];
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# The study {name} as a Snakemake workflow, written by\n\
+         # `obstacle study {study} --out-dir {dir} --workflow snakemake`: one rule per run\n\
+         # (`obstacle solve`; a run that fails numerically leaves RUN.failed), then the\n\
+         # tables and plots (`obstacle study --from-results`). Run `snakemake -j N` here,\n\
+         # or on a cluster with a profile (README). Another binary: --config obstacle=PATH.\n\
+         \n\
+         OBSTACLE = config.get(\"obstacle\", {exe})\n\
+         STUDY = {study_py}\n\
+         SCENE = {scene_py}\n\
+         # A relative mesh.file/mesh.geo override is relative to the scene's folder, as in a study.\n\
+         SCENE_DIR = {scene_dir_py}\n\
+         OUT_DIR = {dir_py}\n\
+         \n\
+         workdir: OUT_DIR\n\
+         \n\
+         rule all:\n    input: {tables}\n\
+         \n\
+         rule table:\n    input: {logs}\n    output: {tables}\n    shell:\n        \
+         \"{{OBSTACLE:q}} study {{STUDY:q}} --out-dir {{OUT_DIR:q}} --from-results --quiet\"",
+        name = study.name,
+        study = study_abs.display(),
+        dir = dir_abs.display(),
+        exe = path_str(obstacle),
+        study_py = path_str(&study_abs),
+        scene_py = path_str(&scene_abs),
+        scene_dir_py = path_str(scene_abs.parent().unwrap_or(Path::new("/"))),
+        dir_py = path_str(&dir_abs),
+        tables = tables.join(", "),
+        logs = logs.join(", "),
+    );
+    for (i, labels) in runs.iter().enumerate() {
+        let out = study.result_path(&dir_abs, i);
+        let sets: Vec<String> = study
+            .overrides(labels)
+            .iter()
+            .flat_map(|o| ["--set", o.as_str()].map(py_str))
+            .collect();
+        let _ = writeln!(
+            s,
+            "\nrule run_{i:03}:\n    output: {log}\n    params:\n        \
+             out={out},\n        failed={failed},\n        sets=[{sets}],\n    shell:\n        \
+             \"(cd {{SCENE_DIR:q}} && {{OBSTACLE:q}} solve {{SCENE:q}} --quiet --out {{params.out:q}} \
+             --failure-marker {{params.failed:q}} {{params.sets:q}}) > {{output:q}}\"",
+            log = logs[i],
+            out = path_str(&out),
+            failed = path_str(&failure_marker_path(&out)),
+            sets = sets.join(", "),
+        );
+    }
+    let path = out_dir.join("Snakefile");
+    crate::output::write_text_atomically(&outputs.stage(&path)?, &s)?;
+    outputs.commit()?;
+    Ok(path)
+}
+
+/// `text` as a Python string literal.
+fn py_str(text: &str) -> String {
+    let mut s = String::from("\"");
+    for c in text.chars() {
+        match c {
+            '\\' => s.push_str("\\\\"),
+            '"' => s.push_str("\\\""),
+            c if c.is_control() => {
+                let _ = write!(s, "\\U{:08x}", c as u32);
+            }
+            c => s.push(c),
+        }
+    }
+    s.push('"');
+    s
 }

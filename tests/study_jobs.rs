@@ -26,41 +26,12 @@ fn run_study(study: &Path, out_dir: &Path, jobs: &str) -> std::process::Output {
     common::run_study(study, out_dir, &["--jobs", jobs])
 }
 
-/// The study's Markdown table, CSV and convergence plots from `--jobs N`,
-/// its out dir removed from the CSV's result files and the wall-time column
-/// (the only one that may differ) blanked.
+/// The study's Markdown table, CSV (but wall times, see
+/// `common::study_tables`) and convergence plots from `--jobs N`.
 fn study_outputs(study: &Path, out_dir: &Path, jobs: &str) -> (String, String, Vec<Vec<u8>>) {
     let o = run_study(study, out_dir, jobs);
     check_success(&format!("study --jobs {jobs}"), &o);
-    let md = std::fs::read_to_string(out_dir.join("jobs.md")).unwrap();
-    // `time` is the last column of the default table.
-    let md = md
-        .lines()
-        .map(|l| match l.strip_suffix(" |") {
-            Some(row) if l.starts_with("| ") => row.rsplit_once(" | ").unwrap().0.to_string(),
-            _ => l.to_string(),
-        })
-        .collect::<Vec<_>>()
-        .join("\n");
-    let csv = std::fs::read_to_string(out_dir.join("jobs.csv")).unwrap();
-    let time = csv
-        .lines()
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == "time")
-        .expect("a time column");
-    let csv = csv
-        .lines()
-        .skip(1)
-        .map(|l| {
-            let mut cells: Vec<&str> = l.split(',').collect();
-            cells[time] = "";
-            cells.join(",")
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
-        .replace(out_dir.to_str().unwrap(), "OUT");
+    let (md, csv) = common::study_tables(out_dir, "jobs");
     let plots = (0..2)
         .map(|k| std::fs::read(out_dir.join(format!("jobs-convergence-{k}.png"))).unwrap())
         .collect();

@@ -134,6 +134,46 @@ pub fn run_study(study: &Path, out_dir: &Path, extra: &[&str]) -> Output {
     run_obstacle(&args)
 }
 
+/// A study's Markdown table and CSV (`OUT_DIR/NAME.md`, `.csv`) with the
+/// wall-time column (the only one that may differ between runs) blanked:
+/// the table's last column dropped, the CSV's `time` cells emptied, its
+/// header dropped and the out dir (as given and canonical) replaced by `OUT`.
+pub fn study_tables(out_dir: &Path, name: &str) -> (String, String) {
+    let md = std::fs::read_to_string(out_dir.join(format!("{name}.md"))).unwrap();
+    // `time` is the last column of the default table.
+    let md = md
+        .lines()
+        .map(|l| match l.strip_suffix(" |") {
+            Some(row) if l.starts_with("| ") => row.rsplit_once(" | ").unwrap().0.to_string(),
+            _ => l.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let csv = std::fs::read_to_string(out_dir.join(format!("{name}.csv"))).unwrap();
+    let time = csv
+        .lines()
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == "time")
+        .expect("a time column");
+    let csv = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let mut cells: Vec<&str> = l.split(',').collect();
+            cells[time] = "";
+            cells.join(",")
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let canonical = out_dir.canonicalize().unwrap();
+    let csv = csv
+        .replace(canonical.to_str().unwrap(), "OUT")
+        .replace(out_dir.to_str().unwrap(), "OUT");
+    (md, csv)
+}
+
 /// `obstacle solve` of the membrane disk scene into `out`, quietly, with
 /// `--set` for each of `sets`.
 pub fn solve_membrane(out: &Path, sets: &[&str]) -> Output {
