@@ -94,7 +94,8 @@ enum Command {
         #[arg(long)]
         quiet: bool,
         /// Runs at a time (they are independent); progress bars show only with 1.
-        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..),
+              conflicts_with_all = ["workflow", "from_results"])]
         jobs: u64,
         /// Solve nothing: write OUT_DIR/Snakefile, one rule per run, then the tables.
         #[arg(long, value_enum, conflicts_with = "from_results")]

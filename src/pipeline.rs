@@ -68,9 +68,20 @@ impl RunSummary {
     /// returned, but `wall_seconds`, which is the run's time up to writing the
     /// file (`/solver/run_seconds`), and what the file does not hold: the
     /// measures' `gap_scale` and the Lanczos step count (both 0).
-    pub fn from_result(path: &Path) -> Result<RunSummary> {
+    pub fn from_result(path: &Path, scene: &Scene) -> Result<RunSummary> {
         let file = crate::output::read_result(path)?;
         let d = &file.data;
+        // A result left from an edited study (other scene text or overrides)
+        // would put another run's numbers in this row.
+        if d.scene_text != scene.text {
+            return Err(Error::output(
+                path,
+                format!(
+                    "root attribute `scene`: this result was run from another scene than {} with these overrides (the study or its scene changed since): rerun the workflow",
+                    scene.source.display()
+                ),
+            ));
+        }
         let missing = |group: &str, name: &str| {
             Error::output(path, format!("no {group} attribute `{name}` (not a result of `obstacle solve`, or one written before `{RUN_SECONDS}` was recorded: rerun it)"))
         };

@@ -329,7 +329,7 @@ pub fn rows_from_results(study_path: &Path, out_dir: &Path) -> Result<Vec<StudyR
                     let text = text.strip_suffix('\n').unwrap_or(&text).to_string();
                     (failed_summary(&scene), Some(text))
                 }
-                (Some(_), _) => (RunSummary::from_result(&out)?, None),
+                (Some(_), _) => (RunSummary::from_result(&out, &scene)?, None),
                 (None, _) => {
                     return Err(Error::output(
                         &out,

@@ -154,3 +154,31 @@ fn missing_results_and_bad_overrides_are_named() {
     );
     assert!(!out.join("Snakefile").exists());
 }
+
+/// `--from-results` refuses a result file left by another version of the
+/// study (here: n = 4, 8 solved, then the study edited to n = 4, 6), naming
+/// the file and the reason, and writes no table.
+#[test]
+fn a_stale_result_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let study = disk_study(
+        dir.path(),
+        "",
+        "[[sweep]]\nkey = \"mesh.n\"\nvalues = [4, 8]\n",
+    );
+    check_success("in-process study", &run_study(&study, &out, &[]));
+    std::fs::remove_file(out.join("flow.md")).unwrap();
+    let edited = disk_study(
+        dir.path(),
+        "",
+        "[[sweep]]\nkey = \"mesh.n\"\nvalues = [4, 6]\n",
+    );
+    let o = run_study(&edited, &out, &["--from-results"]);
+    assert_one_error(
+        &o,
+        &["flow-001.h5", "another scene", "rerun the workflow"],
+        "from-results on a stale result",
+    );
+    assert!(!out.join("flow.md").exists());
+}
