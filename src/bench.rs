@@ -32,6 +32,7 @@
 //!   solver's wall time, and writes log–log plots and a Markdown report.
 
 use crate::error::{Error, Result};
+use crate::guards::peak_rss_kb;
 use crate::linalg::{ReusableFactorization, Solves};
 use crate::output::{read_result, OutputTransaction};
 use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model};
@@ -169,18 +170,6 @@ impl BenchConfig {
 // ---------------------------------------------------------------------------
 // The child process
 
-/// Peak resident set size of this process (kB), from /proc/self/status VmHWM.
-pub fn peak_rss_kb() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))?
-        .split_whitespace()
-        .nth(1)?
-        .parse()
-        .ok()
-}
-
 /// One case; returns the `key=value` fields of its `BENCH` line.
 pub fn run_case(
     scene_path: &Path,
@@ -194,12 +183,11 @@ pub fn run_case(
     let mut f: Vec<(String, String)> = Vec::new();
     if linear {
         let mesh = scene_mesh_in_temp(&scene)?;
+        push_phase_rss(&mut f, "meshing");
         let system = setup_model(&scene, &mesh)?;
         let problem = crate::pipeline::assemble(&scene, &mesh, system.as_ref())?;
         // Peak RSS so far: meshing and assembly (coordinate triplets) alone.
-        if let Some(kb) = peak_rss_kb() {
-            f.push(("assembly_peak_rss_kb".into(), kb.to_string()));
-        }
+        push_phase_rss(&mut f, "assembly");
         // One factorisation and the one checked solve of A x = F …
         let t = Instant::now();
         let (factorization, _, _) = ReusableFactorization::analyze(
@@ -210,6 +198,7 @@ pub fn run_case(
         )?
         .factorize_and_solve(&problem.matrix, &problem.rhs, "system matrix")?;
         let factor_and_solve = t.elapsed().as_secs_f64();
+        push_phase_rss(&mut f, "factorisation");
         // … and one more solve, timed alone (the iteration-cost calibration).
         let t = Instant::now();
         let mut x = problem.rhs.clone();
@@ -231,6 +220,9 @@ pub fn run_case(
         f.push(("kkt".into(), format!("{:e}", s.measures.kkt)));
         f.push(("seconds".into(), format!("{:e}", s.solver_seconds)));
         f.push(("factor_seconds".into(), format!("{:e}", s.factor_seconds)));
+        for (phase, mb) in &s.peak_rss_mb {
+            f.push((format!("rss_kb_{phase}"), format!("{:.0}", mb * 1024.0)));
+        }
         let kkt = s.history.column("kkt").unwrap_or(&[]);
         for &tol in tols {
             let first = kkt.iter().position(|&v| v <= tol).map(|k| k + 1);
@@ -260,6 +252,17 @@ pub fn run_case(
         .collect::<Vec<_>>()
         .join(" "))
 }
+
+/// The peak RSS so far as the field `rss_kb_<phase>` of the `BENCH` line.
+fn push_phase_rss(f: &mut Vec<(String, String)>, phase: &str) {
+    if let Some(kb) = peak_rss_kb() {
+        f.push((format!("rss_kb_{phase}"), kb.to_string()));
+    }
+}
+
+/// The phases whose peak RSS a child reports, in order (the floor's
+/// factorisation, a contact run's solve).
+const RSS_PHASES: [&str; 4] = ["meshing", "assembly", "factorisation", "solve"];
 
 /// Capped runs shorter than this give no estimate of the time to the tolerance.
 pub const MIN_ITERATIONS_FOR_ESTIMATE: usize = 1000;
@@ -397,6 +400,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
     let tightest = *tols.last().expect("validated");
     let mut rows: Vec<BenchRow> = Vec::new();
     let mut floors: Vec<(String, String, usize, f64, f64)> = Vec::new();
+    let mut phase_rss: Vec<PhaseRss> = Vec::new();
     for p in &cfg.problem {
         let scene = base.join(&p.scene);
         let mut capped_methods: Vec<String> = Vec::new();
@@ -423,12 +427,15 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
             };
             let assembly_mem = floor
                 .as_ref()
-                .map_or(f64::NAN, |f| num(f, "assembly_peak_rss_kb") / 1024.0);
+                .map_or(f64::NAN, |f| num(f, "rss_kb_assembly") / 1024.0);
             eprintln!(
                 "{} {}={}: floor {:.3} s (factor {:.3}, solve {:.4}), {} dofs, {:.0} MB ({:.0} MB after assembly)",
                 p.label, p.key, level_s, floor_s, floor_factor, floor_solve, n_dofs, floor_mem, assembly_mem
             );
             floors.push((p.label.clone(), level_s.clone(), n_dofs, floor_s, floor_mem));
+            if let Ok(f) = &floor {
+                phase_rss.push(PhaseRss::new(&p.label, &level_s, "linear solve (floor)", f));
+            }
             for m in &cfg.method {
                 if p.methods.as_ref().is_some_and(|ms| !ms.contains(&m.label)) {
                     continue;
@@ -549,6 +556,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                         continue;
                     }
                 };
+                phase_rss.push(PhaseRss::new(&p.label, &level_s, &m.label, &fields));
                 let iterations = num(&fields, "iterations") as usize;
                 let converged = fields.get("converged").map(String::as_str) == Some("true");
                 let t_iter = {
@@ -629,7 +637,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
             }
         }
     }
-    let md = bench_markdown(cfg, &rows, &floors);
+    let md = bench_markdown(cfg, &rows, &floors) + &phase_rss_markdown(&phase_rss, tightest);
     print!("{md}");
     // The table, CSV and plots appear together (the runs' files are each their own).
     let outputs = OutputTransaction::new(out_dir, &cfg.name, &[config_path.to_path_buf()])?;
@@ -749,6 +757,56 @@ pub fn bench_markdown(
         }
     }
     md.push_str(&targets(cfg, rows));
+    md
+}
+
+/// Peak RSS of one child at the end of each phase (MB, `RSS_PHASES` order;
+/// NaN for a phase the child does not have).
+pub struct PhaseRss {
+    pub problem: String,
+    pub level: String,
+    pub method: String,
+    pub mb: [f64; RSS_PHASES.len()],
+}
+
+impl PhaseRss {
+    fn new(problem: &str, level: &str, method: &str, f: &Fields) -> Self {
+        PhaseRss {
+            problem: problem.into(),
+            level: level.into(),
+            method: method.into(),
+            mb: RSS_PHASES.map(|phase| num(f, &format!("rss_kb_{phase}")) / 1024.0),
+        }
+    }
+}
+
+/// The memory table: peak RSS so far at the end of each phase, per child.
+pub fn phase_rss_markdown(rows: &[PhaseRss], tightest: f64) -> String {
+    let mut md = format!(
+        "\n### Peak RSS per phase (MB; VmHWM at the end of each phase, so each column includes the ones before; contact runs at tol {tightest:.0e}, nested levels inside `solve`)\n\n| problem | level | run | {} |\n|---|---|---|{}\n",
+        RSS_PHASES.join(" | "),
+        "---|".repeat(RSS_PHASES.len())
+    );
+    for r in rows {
+        let cells: Vec<String> =
+            r.mb.iter()
+                .map(|v| {
+                    if v.is_finite() {
+                        format!("{v:.0}")
+                    } else {
+                        "–".into()
+                    }
+                })
+                .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} |",
+            r.problem,
+            r.level,
+            r.method,
+            cells.join(" | ")
+        );
+    }
     md
 }
 

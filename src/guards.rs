@@ -64,6 +64,19 @@ pub fn estimate_before_meshing(scene: &Scene) -> Option<Estimate> {
     Some(estimate(scene, 3.0 * n * n))
 }
 
+/// Peak resident set size of this process so far (kB), from
+/// /proc/self/status VmHWM; None where it cannot be read.
+pub fn peak_rss_kb() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
 /// `MemAvailable` of /proc/meminfo in bytes; None where it cannot be read.
 fn memory_available() -> Option<f64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;

@@ -5,7 +5,7 @@
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::guards;
-use crate::mesh::{Mesh, PointLocator};
+use crate::mesh::Mesh;
 use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::{ExactErrors, FigureData, ModelSystem};
@@ -19,6 +19,7 @@ use crate::solvers::spectrum::SpectrumEstimate;
 use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
 use crate::solvers::uzawa_split::UzawaSplitOptions;
 use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport, SolverOptions};
+use crate::transfer::prolong_dofs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -54,6 +55,10 @@ pub struct RunSummary {
     pub solve_seconds: f64,
     /// The whole run's wall time.
     pub wall_seconds: f64,
+    /// Peak RSS (MB, VmHWM) at the end of each phase: meshing, assembly,
+    /// solve (nested levels and factorisations included); the `/solver`
+    /// attributes `peak_rss_mb_<phase>`. Empty where /proc cannot be read.
+    pub peak_rss_mb: Vec<(String, f64)>,
     pub result_file: PathBuf,
 }
 
@@ -168,6 +173,13 @@ impl RunSummary {
             },
             solver_seconds,
             factor_seconds,
+            peak_rss_mb: solver
+                .iter()
+                .filter_map(|(name, _)| {
+                    let phase = name.strip_prefix("peak_rss_mb_")?;
+                    Some((phase.to_string(), numeric_attr(solver, name)?))
+                })
+                .collect(),
             solve_seconds: solver_seconds - factor_seconds,
             wall_seconds: number(solver, "/solver", RUN_SECONDS)?,
             result_file: path.to_path_buf(),
@@ -239,11 +251,20 @@ pub fn uzawa_step(solver: &SolverSpec) -> UzawaStep {
     }
 }
 
-/// The solver options of a scene's `[solver]` table; `start_lambda`
-/// warm-starts the methods that take one, `show_progress` draws their progress.
+/// A warm start carried from a coarser level (nested iteration): the
+/// primal iterate x (all of the problem's unknowns) and the multiplier λ.
+#[derive(Debug, Clone)]
+pub struct WarmStart {
+    pub x: Vec<f64>,
+    pub lambda: Vec<f64>,
+}
+
+/// The solver options of a scene's `[solver]` table; `start` warm-starts
+/// the methods that take one (active-set: x and λ; dual-accelerated: λ),
+/// `show_progress` draws their progress.
 pub fn solver_options(
     solver: &SolverSpec,
-    start_lambda: Option<Vec<f64>>,
+    start: Option<WarmStart>,
     show_progress: bool,
 ) -> SolverOptions {
     let max_iter = solver.max_iter as usize;
@@ -252,7 +273,8 @@ pub fn solver_options(
             tol: solver.tol,
             max_iter,
             show_progress,
-            initial_lambda: start_lambda,
+            initial_x: start.as_ref().map(|s| s.x.clone()),
+            initial_lambda: start.as_ref().map(|s| s.lambda.clone()),
             cold_start: match solver.cold_start {
                 ColdStartSpec::DepthBisection => ColdStart::DEPTH_BISECTION,
                 ColdStartSpec::Plain => ColdStart::Plain,
@@ -263,7 +285,7 @@ pub fn solver_options(
             tol: solver.tol,
             max_iter,
             show_progress,
-            initial_lambda: start_lambda,
+            initial_lambda: start.map(|s| s.lambda),
             ..Default::default()
         }),
         Method::UzawaSplit => SolverOptions::UzawaSplit(UzawaSplitOptions {
@@ -317,20 +339,29 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         None => outputs.stage(&out.with_extension("msh"))?,
         Some(_) => PathBuf::new(), // the scene's own mesh file: nothing written
     };
+    let mut peak_rss_mb: Vec<(String, f64)> = Vec::new();
+    let mut phase_end = |phase: &str| {
+        if let Some(kb) = guards::peak_rss_kb() {
+            peak_rss_mb.push((phase.into(), kb as f64 / 1024.0));
+        }
+    };
     let mesh = scene_mesh(scene, &msh)?;
+    phase_end("meshing");
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
     let problem = assemble(scene, &mesh, system.as_ref())?;
+    phase_end("assembly");
 
     // The solver the scene names; without an obstacle, one linear solve.
-    let start_lambda = nested_start(scene, &mesh)?;
+    let warm_start = nested_start(scene, system.as_ref(), &problem)?;
     let report = crate::solvers::solve(
         &problem,
-        &solver_options(&scene.solver, start_lambda, show_progress),
+        &solver_options(&scene.solver, warm_start, show_progress),
         &system.probes(),
     )
     .map_err(|e| guards::name_matrix_inputs(scene, e))?;
+    phase_end("solve");
 
     let mut data = system.results(&problem, &report);
     data.scene_text = scene.text.clone();
@@ -348,6 +379,11 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         RUN_SECONDS.into(),
         AttrValue::F64(start.elapsed().as_secs_f64()),
     ));
+    data.solver_attrs.extend(
+        peak_rss_mb
+            .iter()
+            .map(|(phase, mb)| (format!("peak_rss_mb_{phase}"), AttrValue::F64(*mb))),
+    );
     write_result(&staged_out, &mesh, &data)?;
     write_plots(
         scene,
@@ -381,6 +417,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         factor_seconds: report.factor_seconds,
         solve_seconds: report.wall_seconds - report.factor_seconds,
         wall_seconds: start.elapsed().as_secs_f64(),
+        peak_rss_mb,
         result_file: out.to_path_buf(),
     })
 }
@@ -402,10 +439,18 @@ pub fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSys
 }
 
 /// Nested iteration (`solver.nested`): the scene solved on the mesh with
-/// n/2 (itself nested, down to n < 8), its P0 multiplier carried to this
-/// mesh triangle by triangle (the coarse value at each centroid). None when
-/// not asked for, when there is no coarser level, or without contact.
-fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
+/// n/2 (itself nested, down to n < 8) and its whole solution carried to
+/// `system`'s mesh: every coefficient vector prolonged by interpolation
+/// (`transfer::prolong_dofs`), x from the primal ones, λ from `lambda`. A
+/// coarse level without contact (λ = 0) carries nothing: this level starts
+/// cold (active-set: depth bisection), so the bisection runs on the
+/// coarsest level that touches and PDAS finishes every finer one. None
+/// when not asked for, at the coarsest level, or without contact.
+fn nested_start(
+    scene: &Scene,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+) -> Result<Option<WarmStart>> {
     let (true, Some(n), Some(_)) = (scene.solver.nested, scene.mesh.n, &scene.obstacle) else {
         return Ok(None);
     };
@@ -415,32 +460,29 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
-    let system = setup_model(&coarse, &coarse_mesh)?;
-    let problem = assemble(&coarse, &coarse_mesh, system.as_ref())?;
-    if problem.n_multipliers() != coarse_mesh.n_triangles() {
-        return Ok(None); // not a P0 multiplier: no triangle-wise transfer
-    }
-    let start = nested_start(&coarse, &coarse_mesh)?;
+    let coarse_system = setup_model(&coarse, &coarse_mesh)?;
+    let coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
+    let start = nested_start(&coarse, coarse_system.as_ref(), &coarse_problem)?;
     let report = crate::solvers::solve(
-        &problem,
+        &coarse_problem,
         &solver_options(&coarse.solver, start, false),
-        &system.probes(),
+        &coarse_system.probes(),
     )?;
-    let locator = PointLocator::new(&coarse_mesh);
-    let lambda = mesh
-        .triangles
+    if report.lambda.iter().all(|&l| l <= 0.0) {
+        return Ok(None);
+    }
+    let data = coarse_system.results(&coarse_problem, &report);
+    let dofs = prolong_dofs(&data, &coarse_mesh, system.mesh());
+    let lambda = dofs
         .iter()
-        .map(|tri| {
-            let c = tri.iter().fold([0.0, 0.0], |c, &v| {
-                [
-                    c[0] + mesh.vertices[v][0] / 3.0,
-                    c[1] + mesh.vertices[v][1] / 3.0,
-                ]
-            });
-            locator.locate(c).map_or(0.0, |(t, _)| report.lambda[t])
-        })
-        .collect();
-    Ok(Some(lambda))
+        .find(|(name, _)| name == "lambda")
+        .map(|(_, l)| l.clone())
+        .filter(|l| l.len() == problem.n_multipliers());
+    let Some(lambda) = lambda else {
+        return Ok(None); // a multiplier that does not prolong: start cold
+    };
+    let x = system.primal_from_dofs(&dofs)?;
+    Ok((x.len() == problem.n()).then_some(WarmStart { x, lambda }))
 }
 
 /// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.

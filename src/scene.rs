@@ -398,8 +398,8 @@ pub struct SolverSpec {
     /// The norm of the thesis criterion.
     #[serde(default)]
     pub dual_norm: DualNorm,
-    /// Nested iteration: start from the solution on the mesh with n/2
-    /// (recursively, down to n < 8), for methods that take a warm start
+    /// Nested iteration: start from the solution (x and λ) on the mesh with
+    /// n/2 (recursively, down to n < 8), for methods that take a warm start
     /// (active-set, dual-accelerated). Needs a structured mesh (`mesh.n`).
     #[serde(default)]
     pub nested: bool,

@@ -11,7 +11,7 @@ use crate::assembly::quad_points;
 use crate::error::{Error, Result};
 use crate::mesh::{Mesh, PointLocator};
 use crate::output::blocks::{components, components_in_space, result_mesh, Component};
-use crate::output::ResultFile;
+use crate::output::{ResultData, ResultFile};
 use crate::quadrature::TriangleRule;
 use crate::space::{Space, TriangleGeometry};
 use std::path::Path;
@@ -57,6 +57,40 @@ pub fn prolong(coarse: &Space, coarse_c: &[f64], locator: &PointLocator, fine: &
             .locate(x)
             .map_or(0.0, |(t, l)| coarse.evaluate(coarse_c, t, l))
     })
+}
+
+/// The coefficient vectors `/dofs/*` of a coarse result prolonged block by
+/// block onto `fine` ([`prolong`] in the element of each vector's `space`
+/// tag): the nested-iteration start. A vector without a readable tag, or
+/// whose length is not k blocks of its element, is left out.
+pub fn prolong_dofs(
+    coarse: &ResultData,
+    coarse_mesh: &Mesh,
+    fine_mesh: &Mesh,
+) -> Vec<(String, Vec<f64>)> {
+    let locator = PointLocator::new(coarse_mesh);
+    let mut out = Vec::new();
+    for (name, values) in &coarse.dofs {
+        let space = coarse
+            .dof_spaces
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, tag)| crate::output::parse_space_tag(tag));
+        let Some((element, k)) = space else { continue };
+        let Some(blocks) = components_in_space(name, values, coarse_mesh, element, k) else {
+            continue;
+        };
+        let (coarse_space, fine_space) = (
+            Space::new(coarse_mesh, element),
+            Space::new(fine_mesh, element),
+        );
+        let fine: Vec<f64> = blocks
+            .iter()
+            .flat_map(|b| prolong(&coarse_space, b.coefficients, &locator, &fine_space))
+            .collect();
+        out.push((name.clone(), fine));
+    }
+    out
 }
 
 /// Relative L² errors of every component of the fields `names` of `coarse`

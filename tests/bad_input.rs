@@ -537,8 +537,8 @@ fn datasets(file: &ResultFile) -> Vec<(String, Vec<u64>)> {
         out.push((format!("solver/history/{n}"), bits(v)));
     }
     for (n, v) in d.solver_attrs.iter().chain(&d.root_attrs) {
-        if n.contains("seconds") {
-            continue; // wall-time attributes
+        if n.contains("seconds") || n.starts_with("peak_rss_mb") {
+            continue; // wall-time and memory attributes
         }
         let b = match v {
             AttrValue::F64(x) => vec![x.to_bits()],
