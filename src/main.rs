@@ -271,6 +271,15 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Info { file } => {
             print!("{}", summary(&read_result(&file)?));
+            // An adaptive result: every step read back, one table row each.
+            let steps = obstacle_fem::output::read_steps(&file)?;
+            if !steps.is_empty() {
+                println!("adaptive steps: {}", steps.len());
+                print!(
+                    "{}",
+                    obstacle_fem::adapt::steps_table(&obstacle_fem::adapt::rows_of(&steps))
+                );
+            }
             Ok(())
         }
         Command::Freefem {

@@ -10,7 +10,9 @@ use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::{ExactErrors, FigureData, ModelSystem};
 use crate::output::transaction::RemoveOnSignal;
-use crate::output::{numeric_attr, write_result, AttrValue, OutputTransaction, ResultData};
+use crate::output::{
+    numeric_attr, write_result, AttrValue, Field, Location, OutputTransaction, ResultData,
+};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
@@ -188,6 +190,9 @@ pub fn output_folder(out: &Path) -> Result<&Path> {
 /// scene's plots beside it) in one [`OutputTransaction`]: all of them or,
 /// on any error, none, and never over an input of the run.
 pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
+    if scene.adapt.is_some() {
+        return crate::adapt::run_adaptive(scene, out).map(|(summary, _)| summary);
+    }
     let start = Instant::now();
     let dir = output_folder(out)?;
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
@@ -228,6 +233,9 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         data.root_attrs.extend(e.attrs());
     }
     record_solver(&mut data, &scene.solver, &report);
+    if scene.output.plots.contains(&PlotKind::Estimator) {
+        add_estimator(&mut data, system.as_ref(), &problem, &report);
+    }
     write_result(&staged_out, &mesh, &data)?;
     write_plots(
         scene,
@@ -323,15 +331,37 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     Ok(Some(lambda))
 }
 
+/// The model's a posteriori indicators as the cell field `estimator` and
+/// their total η = (Σ η_T²)^½ as the root attribute `estimator`; None (and
+/// nothing added) when the model has no estimator.
+pub fn add_estimator(
+    data: &mut ResultData,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    report: &SolveReport,
+) -> Option<f64> {
+    let eta = system.estimator(problem, report)?;
+    let total = eta.iter().map(|e| e * e).sum::<f64>().sqrt();
+    data.fields.push(Field {
+        name: "estimator".into(),
+        values: eta,
+        components: 1,
+        location: Location::Cell,
+    });
+    data.root_attrs
+        .push(("estimator".into(), AttrValue::F64(total)));
+    Some(total)
+}
+
 /// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
-fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
+pub fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
     let name = kind.name();
     out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))
 }
 
 /// The plots the scene asks for, beside the result file; nothing else is
 /// drawn. The solver's history is drawn here, every other figure by the model.
-fn write_plots(
+pub fn write_plots(
     scene: &Scene,
     out: &Path,
     system: &dyn ModelSystem,
@@ -357,7 +387,7 @@ fn write_plots(
 }
 
 /// The `/solver` attributes and history of docs/formulation.md §5.
-fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
+pub fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
     let m = &report.measures;
     let mut attrs: Vec<(String, AttrValue)> = vec![
         ("algorithm".into(), AttrValue::Str(report.algorithm.clone())),
