@@ -216,6 +216,8 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
     let _on_signal = RemoveOnSignal::new(meshes.path());
 
     let mut mesh = scene_mesh(scene, &meshes.path().join("step-000.msh"))?;
+    // Meshing and transfer time of the step about to be solved.
+    let mut mesh_seconds = start.elapsed().as_secs_f64();
     let mut steps: Vec<(Mesh, ResultData)> = Vec::new();
     let mut rows: Vec<StepRow> = Vec::new();
     let mut carried: Vec<(String, Vec<f64>)> = Vec::new();
@@ -249,6 +251,10 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
         data.root_attrs.extend([
             ("adapt_step".to_string(), AttrValue::I64(k as i64)),
             ("adapt_seconds".to_string(), AttrValue::F64(seconds)),
+            (
+                "adapt_mesh_seconds".to_string(),
+                AttrValue::F64(mesh_seconds),
+            ),
         ]);
         rows.push(StepRow {
             n_dofs: system.n_dofs(),
@@ -262,6 +268,7 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
         let next = match stop {
             Some(_) => None,
             None => {
+                let meshing = Instant::now();
                 let eta = &data.fields.iter().find(|f| f.name == "estimator");
                 let eta = &eta.expect("add_estimator wrote it").values;
                 let next = remesh(
@@ -279,6 +286,7 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
                     .map(|(e, _)| e);
                 let next_dofs = u_element.map(|e| Space::new(&next, e).n_dofs());
                 stop = stop_reason(spec, k, estimator, next_dofs);
+                mesh_seconds = meshing.elapsed().as_secs_f64();
                 stop.is_none().then_some(next)
             }
         };
@@ -330,7 +338,9 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
         drop(system);
         let next = next.expect("no stop: a next mesh");
         let previous = (mesh, data);
+        let transfer = Instant::now();
         carried = carry_over(&previous, &next);
+        mesh_seconds += transfer.elapsed().as_secs_f64();
         steps.push(previous);
         mesh = next;
     }
@@ -372,4 +382,120 @@ pub fn rows_of(steps: &[crate::output::ResultFile]) -> Vec<StepRow> {
             }
         })
         .collect()
+}
+
+/// The uniform levels `make adapt` compares against (structured disk meshes, `mesh.n`).
+pub const UNIFORM_LEVELS: [i64; 4] = [8, 16, 32, 64];
+
+/// One run of a comparison curve: dofs, H¹ error and wall time.
+type CurvePoint = (f64, f64, f64);
+
+/// `obstacle adapt SCENE`: the scene's adaptive loop beside the uniform
+/// levels [`UNIFORM_LEVELS`], both with errors against the exact solution.
+/// Writes into `out_dir`: `NAME-ELEMENT.h5` (every step), the uniform runs
+/// `NAME-ELEMENT-uniform-N.h5`, `NAME-ELEMENT.md` (both tables, and dofs and
+/// seconds to the finest uniform error) and the curves `NAME-ELEMENT.dofs.png`
+/// (error against dofs) and `NAME-ELEMENT.time.png` (against wall time,
+/// meshing and transfer included). Returns the markdown text.
+pub fn compare_command(scene: &Scene, out_dir: &Path) -> Result<String> {
+    if scene.adapt.is_none() || !scene.output.errors {
+        return Err(Error::Scene {
+            file: scene.source.clone(),
+            field: "adapt".into(),
+            reason: "`obstacle adapt` compares an [adapt] scene with `output.errors = true` against uniform meshes".into(),
+        });
+    }
+    let label = format!("{}-{}", scene.name, scene.element.name());
+    let (_, rows) = run_adaptive(scene, &out_dir.join(format!("{label}.h5")))?;
+    let mut uniform: Vec<CurvePoint> = Vec::new();
+    for n in UNIFORM_LEVELS {
+        let mut level = scene.clone();
+        level.adapt = None;
+        level.mesh.n = Some(n);
+        level.mesh.h = None;
+        level.output.plots.clear();
+        let s = crate::pipeline::run_scene(
+            &level,
+            &out_dir.join(format!("{label}-uniform-{n}.h5")),
+            false,
+        )?;
+        let error = s.errors.map_or(f64::NAN, |e| e.h1);
+        uniform.push((s.n_dofs as f64, error, s.wall_seconds));
+    }
+    let adaptive: Vec<CurvePoint> = rows
+        .iter()
+        .map(|r| (r.n_dofs as f64, r.error_h1.unwrap_or(f64::NAN), r.seconds))
+        .collect();
+    let title = format!(
+        "{}: adaptive vs uniform ({})",
+        scene.name,
+        scene.element.name()
+    );
+    let series = |pick: fn(&CurvePoint) -> (f64, f64)| {
+        vec![
+            ("adaptive".to_string(), adaptive.iter().map(pick).collect()),
+            ("uniform".to_string(), uniform.iter().map(pick).collect()),
+        ]
+    };
+    crate::plot::plot_convergence(
+        &out_dir.join(format!("{label}.dofs.png")),
+        &series(|p| (p.0, p.1)),
+        "dofs",
+        "H¹ error",
+        &title,
+        &[-0.5, -1.0],
+    )?;
+    crate::plot::plot_convergence(
+        &out_dir.join(format!("{label}.time.png")),
+        &series(|p| (p.2, p.1)),
+        "wall seconds (meshing and transfer included)",
+        "H¹ error",
+        &title,
+        &[],
+    )?;
+    let markdown = compare_markdown(&label, &rows, &uniform);
+    crate::output::write_text_atomically(&out_dir.join(format!("{label}.md")), &markdown)?;
+    Ok(markdown)
+}
+
+/// The comparison's markdown: both tables and the cost of the finest uniform error.
+fn compare_markdown(label: &str, rows: &[StepRow], uniform: &[CurvePoint]) -> String {
+    let mut s = format!(
+        "## {label}: adaptive\n\n{}\n## {label}: uniform\n\n",
+        steps_table(rows)
+    );
+    s.push_str("| n | dofs | H¹ error | seconds |\n|---:|---:|---:|---:|\n");
+    for (n, (dofs, error, seconds)) in UNIFORM_LEVELS.iter().zip(uniform) {
+        let _ = writeln!(s, "| {n} | {dofs} | {error:.3e} | {seconds:.2} |");
+    }
+    let (n, (dofs, error, seconds)) = (
+        UNIFORM_LEVELS[UNIFORM_LEVELS.len() - 1],
+        uniform[uniform.len() - 1],
+    );
+    let reached = rows
+        .iter()
+        .enumerate()
+        .find(|(_, r)| r.error_h1.is_some_and(|e| e <= error));
+    let _ = writeln!(s);
+    match reached {
+        Some((k, r)) => {
+            let _ = writeln!(
+                s,
+                "Uniform n = {n}: H¹ error {error:.3e} with {dofs} dofs in {seconds:.2} s. Adaptive: ≤ that error at step {k} with {} dofs ({:.2}× the uniform dofs) after {:.2} s in all ({:.2}× the uniform time).",
+                r.n_dofs,
+                r.n_dofs as f64 / dofs,
+                r.seconds,
+                r.seconds / seconds
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "Uniform n = {n}: H¹ error {error:.3e} with {dofs} dofs in {seconds:.2} s. The adaptive loop stopped before reaching it (best {:.3e} with {} dofs).",
+                rows.last().and_then(|r| r.error_h1).unwrap_or(f64::NAN),
+                rows.last().map_or(0, |r| r.n_dofs)
+            );
+        }
+    }
+    s
 }
