@@ -303,31 +303,8 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
                 &report,
                 errors.as_ref(),
             )?;
-            let summary = RunSummary {
-                scene: scene.name.clone(),
-                model: scene.model.name().into(),
-                element: scene.element.name().into(),
-                h: mesh.h_max(),
-                n_vertices: mesh.n_vertices(),
-                n_triangles: mesh.n_triangles(),
-                n_dofs: system.n_dofs(),
-                algorithm: report.algorithm.clone(),
-                iterations: report.iterations,
-                converged: report.converged,
-                stop_reason: report.stop_reason.clone(),
-                last_dual_step: report.last_dual_step(),
-                measures: report.measures,
-                alpha: report.alpha,
-                spectrum: report.spectrum,
-                errors,
-                attrs: data.root_attrs.clone(),
-                history: report.history.clone(),
-                solver_seconds: report.wall_seconds,
-                factor_seconds: report.factor_seconds,
-                solve_seconds: report.wall_seconds - report.factor_seconds,
-                wall_seconds: start.elapsed().as_secs_f64(),
-                result_file: out.to_path_buf(),
-            };
+            let summary =
+                RunSummary::of_run(scene, system.as_ref(), &report, errors, &data, start, out);
             drop(system);
             steps.push((mesh, data));
             let refs: Vec<(&Mesh, &ResultData)> = steps.iter().map(|(m, d)| (m, d)).collect();

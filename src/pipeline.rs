@@ -60,6 +60,45 @@ pub struct RunSummary {
 }
 
 impl RunSummary {
+    /// The summary of a finished run: `data` is what was written to `out`,
+    /// `start` when the run began.
+    pub fn of_run(
+        scene: &Scene,
+        system: &dyn ModelSystem,
+        report: &SolveReport,
+        errors: Option<ExactErrors>,
+        data: &ResultData,
+        start: Instant,
+        out: &Path,
+    ) -> RunSummary {
+        let mesh = system.mesh();
+        RunSummary {
+            scene: scene.name.clone(),
+            model: scene.model.name().into(),
+            element: scene.element.name().into(),
+            h: mesh.h_max(),
+            n_vertices: mesh.n_vertices(),
+            n_triangles: mesh.n_triangles(),
+            n_dofs: system.n_dofs(),
+            algorithm: report.algorithm.clone(),
+            iterations: report.iterations,
+            converged: report.converged,
+            stop_reason: report.stop_reason.clone(),
+            last_dual_step: report.last_dual_step(),
+            measures: report.measures,
+            alpha: report.alpha,
+            spectrum: report.spectrum,
+            errors,
+            attrs: data.root_attrs.clone(),
+            history: report.history.clone(),
+            solver_seconds: report.wall_seconds,
+            factor_seconds: report.factor_seconds,
+            solve_seconds: report.wall_seconds - report.factor_seconds,
+            wall_seconds: start.elapsed().as_secs_f64(),
+            result_file: out.to_path_buf(),
+        }
+    }
+
     /// A numeric root attribute of the result, by name.
     pub fn attr(&self, name: &str) -> Option<f64> {
         numeric_attr(&self.attrs, name)
@@ -246,31 +285,15 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         errors.as_ref(),
     )?;
     outputs.commit()?;
-    Ok(RunSummary {
-        scene: scene.name.clone(),
-        model: scene.model.name().into(),
-        element: scene.element.name().into(),
-        h: mesh.h_max(),
-        n_vertices: mesh.n_vertices(),
-        n_triangles: mesh.n_triangles(),
-        n_dofs: system.n_dofs(),
-        algorithm: report.algorithm.clone(),
-        iterations: report.iterations,
-        converged: report.converged,
-        stop_reason: report.stop_reason.clone(),
-        last_dual_step: report.last_dual_step(),
-        measures: report.measures,
-        alpha: report.alpha,
-        spectrum: report.spectrum,
+    Ok(RunSummary::of_run(
+        scene,
+        system.as_ref(),
+        &report,
         errors,
-        attrs: data.root_attrs.clone(),
-        history: report.history.clone(),
-        solver_seconds: report.wall_seconds,
-        factor_seconds: report.factor_seconds,
-        solve_seconds: report.wall_seconds - report.factor_seconds,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        result_file: out.to_path_buf(),
-    })
+        &data,
+        start,
+        out,
+    ))
 }
 
 /// The model's contact problem, checked: finite, every multiplier acting

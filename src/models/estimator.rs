@@ -209,24 +209,7 @@ pub fn membrane_indicators(state: &MembraneState) -> Indicators {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn square(n: usize) -> Mesh {
-        let mut vertices = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                vertices.push([i as f64 / n as f64, j as f64 / n as f64]);
-            }
-        }
-        let id = |i: usize, j: usize| j * (n + 1) + i;
-        let mut triangles = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-            }
-        }
-        Mesh::from_triangles(vertices, triangles, "square".into()).unwrap()
-    }
+    use crate::transfer::tests::square;
 
     /// Δ of interpolated quadratics is exact for P2 and P2⊕B3 (Δ(x² + 3xy − 2y²) = −2),
     /// and the interpolant of a global quadratic has no flux jumps; with g = 2 the
