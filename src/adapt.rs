@@ -14,10 +14,10 @@ use crate::gmsh::run_gmsh_sized;
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::ModelSystem;
 use crate::output::transaction::RemoveOnSignal;
-use crate::output::{parse_space_tag, write_adaptive_result, AttrValue, ResultData};
+use crate::output::{numeric_attr, parse_space_tag, write_adaptive_result, AttrValue, ResultData};
 use crate::pipeline::{
-    add_estimator, assemble, output_folder, plot_path, record_solver, scene_mesh, setup_model,
-    solver_options, write_plots, RunSummary,
+    assemble, output_folder, plot_path, result_data, scene_mesh, setup_model, solver_options,
+    write_plots, RunSummary,
 };
 use crate::scene::{AdaptSpec, Scene};
 use crate::solvers::SolverOptions;
@@ -228,24 +228,12 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
         let options = warm_options(scene, system.as_ref(), &carried)?;
         let report = crate::solvers::solve(&problem, &options, &system.probes())
             .map_err(|e| crate::guards::name_matrix_inputs(scene, e))?;
-        let mut data = system.results(&problem, &report);
-        data.scene_text = scene.text.clone();
-        let errors = if scene.output.errors {
-            system.exact_errors(&problem, &report)
-        } else {
-            None
-        };
-        if let Some(e) = &errors {
-            data.root_attrs.extend(e.attrs());
-        }
-        record_solver(&mut data, &scene.solver, &report);
+        let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
         let estimator =
-            add_estimator(&mut data, system.as_ref(), &problem, &report).ok_or_else(|| {
-                Error::Scene {
-                    file: scene.source.clone(),
-                    field: "adapt".into(),
-                    reason: format!("the {} model has no estimator", scene.model.name()),
-                }
+            numeric_attr(&data.root_attrs, "estimator").ok_or_else(|| Error::Scene {
+                file: scene.source.clone(),
+                field: "adapt".into(),
+                reason: format!("the {} model has no estimator", scene.model.name()),
             })?;
         let seconds = start.elapsed().as_secs_f64();
         data.root_attrs.extend([

@@ -261,20 +261,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     )
     .map_err(|e| guards::name_matrix_inputs(scene, e))?;
 
-    let mut data = system.results(&problem, &report);
-    data.scene_text = scene.text.clone();
-    let errors = if scene.output.errors {
-        system.exact_errors(&problem, &report)
-    } else {
-        None
-    };
-    if let Some(e) = &errors {
-        data.root_attrs.extend(e.attrs());
-    }
-    record_solver(&mut data, &scene.solver, &report);
-    if scene.output.plots.contains(&PlotKind::Estimator) {
-        add_estimator(&mut data, system.as_ref(), &problem, &report);
-    }
+    let (data, errors) = result_data(scene, system.as_ref(), &problem, &report);
     write_result(&staged_out, &mesh, &data)?;
     write_plots(
         scene,
@@ -354,10 +341,36 @@ fn nested_start(scene: &Scene, mesh: &Mesh) -> Result<Option<Vec<f64>>> {
     Ok(Some(lambda))
 }
 
+/// What a solve writes: the model's results, the scene text, the errors
+/// against the exact solution (`output.errors`), the `/solver` group and,
+/// for an adaptive scene or the "estimator" plot, the estimator.
+pub fn result_data(
+    scene: &Scene,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    report: &SolveReport,
+) -> (ResultData, Option<ExactErrors>) {
+    let mut data = system.results(problem, report);
+    data.scene_text = scene.text.clone();
+    let errors = if scene.output.errors {
+        system.exact_errors(problem, report)
+    } else {
+        None
+    };
+    if let Some(e) = &errors {
+        data.root_attrs.extend(e.attrs());
+    }
+    record_solver(&mut data, &scene.solver, report);
+    if scene.adapt.is_some() || scene.output.plots.contains(&PlotKind::Estimator) {
+        add_estimator(&mut data, system, problem, report);
+    }
+    (data, errors)
+}
+
 /// The model's a posteriori indicators as the cell field `estimator` and
 /// their total η = (Σ η_T²)^½ as the root attribute `estimator`; None (and
 /// nothing added) when the model has no estimator.
-pub fn add_estimator(
+fn add_estimator(
     data: &mut ResultData,
     system: &dyn ModelSystem,
     problem: &ContactProblem,
@@ -410,7 +423,7 @@ pub fn write_plots(
 }
 
 /// The `/solver` attributes and history of docs/formulation.md §5.
-pub fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
+fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
     let m = &report.measures;
     let mut attrs: Vec<(String, AttrValue)> = vec![
         ("algorithm".into(), AttrValue::Str(report.algorithm.clone())),
