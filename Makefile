@@ -155,6 +155,13 @@ freefem-timings: build
 #   make study   work–precision: error against time, report in build/study/
 BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 
+# Issue 14: the adaptive loop on the disk beside uniform n = 8…64, both pairs
+# (build/adapt/*.md tables, *.dofs.png and *.time.png curves).
+.PHONY: adapt
+adapt: build
+	$(BIN) adapt pipelines/scenes/obstacle-disk-adapt.toml --out-dir $(BUILD)/adapt
+	$(BIN) adapt pipelines/scenes/obstacle-disk-adapt.toml --set 'element="p2-p1"' --out-dir $(BUILD)/adapt
+
 .PHONY: bench bench-1000 scale study
 
 bench: build

@@ -32,7 +32,18 @@ const LOG_LINES: usize = 20;
 /// Mesh `geo` in 2-D into `out_msh` (MSH 2.2 ASCII), setting each
 /// `(NAME, VALUE)` of `params` with `-setnumber NAME VALUE`.
 pub fn run_gmsh(geo: &Path, out_msh: &Path, params: &[(String, f64)]) -> Result<()> {
-    run_gmsh_with(OsStr::new(GMSH), geo, out_msh, params)
+    run_gmsh_with(OsStr::new(GMSH), geo, out_msh, params, None)
+}
+
+/// As [`run_gmsh`], with the sizes of a background mesh (`-bgm`: a `.pos`
+/// view of target sizes, as the adaptive loop writes it).
+pub fn run_gmsh_sized(
+    geo: &Path,
+    out_msh: &Path,
+    params: &[(String, f64)],
+    background: &Path,
+) -> Result<()> {
+    run_gmsh_with(OsStr::new(GMSH), geo, out_msh, params, Some(background))
 }
 
 /// The version gmsh reports (`gmsh --version`), e.g. "4.8.4"; None if gmsh
@@ -79,6 +90,7 @@ fn run_gmsh_with(
     geo: &Path,
     out_msh: &Path,
     params: &[(String, f64)],
+    background: Option<&Path>,
 ) -> Result<()> {
     let err = |reason: String| Error::Gmsh {
         geo: geo.to_path_buf(),
@@ -138,13 +150,17 @@ fn run_gmsh_with(
     let _on_signal = crate::output::transaction::RemoveOnSignal::new(tmp_dir.path());
     let tmp = tmp_dir.path().join(file_name);
 
-    let output = output_with_timeout(Command::new(program).args(gmsh_args(geo, &tmp, params)))
-        .map_err(|e| match e {
-            RunError::Spawn(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                err(GMSH_NOT_FOUND.to_string())
-            }
-            e => err(e.describe(&program.to_string_lossy())),
-        })?;
+    let mut command = Command::new(program);
+    command.args(gmsh_args(geo, &tmp, params));
+    if let Some(b) = background {
+        command.arg("-bgm").arg(b);
+    }
+    let output = output_with_timeout(&mut command).map_err(|e| match e {
+        RunError::Spawn(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            err(GMSH_NOT_FOUND.to_string())
+        }
+        e => err(e.describe(&program.to_string_lossy())),
+    })?;
     let log = log_tail(&output.stdout, &output.stderr);
     let has_error_line = [&output.stdout, &output.stderr].iter().any(|b| {
         String::from_utf8_lossy(b)
@@ -263,6 +279,7 @@ mod tests {
             &geo,
             &out,
             &[("n".into(), 4.0)],
+            None,
         )
         .unwrap_err();
         assert_eq!(reason(e), GMSH_NOT_FOUND);

@@ -6,12 +6,14 @@
 //! functions) → [`models`] (membrane, Naghdi shell) build an algebraic contact problem
 //! → [`solvers`] (know nothing about the models) → [`output`] (HDF5 + XDMF).
 //! [`pipeline`] runs these steps for one scene; [`study`] runs many, and
-//! [`transfer`] measures a run against a finer one.
+//! [`transfer`] measures a run against a finer one; [`adapt`] loops a scene
+//! over meshes refined where its a posteriori estimator is large.
 
 // FE kernels index several arrays with the same local index; iterator
 // chains would hide that, so index loops are kept.
 #![allow(clippy::needless_range_loop)]
 
+pub mod adapt;
 pub mod assembly;
 pub mod bench;
 pub mod error;

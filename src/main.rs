@@ -104,6 +104,15 @@ enum Command {
         #[arg(long)]
         from_results: bool,
     },
+    /// An [adapt] scene's loop beside uniform meshes n = 8…64 (`make adapt`):
+    /// result files, a markdown table and the error curves in OUT_DIR.
+    Adapt {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        #[arg(long, default_value = "build/adapt")]
+        out_dir: PathBuf,
+    },
     /// Run the hard cases (pipelines/scenes/hard/) and print their table.
     Hard {
         #[arg(default_value = "pipelines/scenes/hard")]
@@ -308,6 +317,15 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Info { file } => {
             print!("{}", summary(&read_result(&file)?));
+            // An adaptive result: every step read back, one table row each.
+            let steps = obstacle_fem::output::read_steps(&file)?;
+            if !steps.is_empty() {
+                println!("adaptive steps: {}", steps.len());
+                print!(
+                    "{}",
+                    obstacle_fem::adapt::steps_table(&obstacle_fem::adapt::rows_of(&steps))
+                );
+            }
             Ok(())
         }
         Command::Freefem {
@@ -328,6 +346,21 @@ fn run(cli: Cli) -> Result<()> {
             row,
         } => {
             obstacle_fem::output::compare::command(&a, &b, rtol, fields.as_deref(), row.as_deref())
+        }
+        Command::Adapt {
+            scene,
+            set,
+            out_dir,
+        } => {
+            let scene = Scene::load(&scene, &command_line_overrides(&set))?;
+            std::fs::create_dir_all(&out_dir).map_err(|e| {
+                obstacle_fem::Error::output(&out_dir, format!("cannot create the folder: {e}"))
+            })?;
+            print!(
+                "{}",
+                obstacle_fem::adapt::compare_command(&scene, &out_dir)?
+            );
+            Ok(())
         }
         Command::Hard { dir, set, out_dir } => obstacle_fem::hard::command(&dir, &out_dir, &set),
         Command::Bench { command } => bench(command),

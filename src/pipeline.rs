@@ -10,7 +10,9 @@ use crate::models::membrane::MembraneSystem;
 use crate::models::naghdi::system::NaghdiSystem;
 use crate::models::{ExactErrors, FigureData, ModelSystem};
 use crate::output::transaction::RemoveOnSignal;
-use crate::output::{numeric_attr, write_result, AttrValue, OutputTransaction, ResultData};
+use crate::output::{
+    numeric_attr, write_result, AttrValue, Field, Location, OutputTransaction, ResultData,
+};
 use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
@@ -63,6 +65,46 @@ pub struct RunSummary {
 }
 
 impl RunSummary {
+    /// The summary of a finished run: `data` is what was written to `out`,
+    /// `start` when the run began.
+    pub fn of_run(
+        scene: &Scene,
+        system: &dyn ModelSystem,
+        report: &SolveReport,
+        errors: Option<ExactErrors>,
+        data: &ResultData,
+        start: Instant,
+        out: &Path,
+    ) -> RunSummary {
+        let mesh = system.mesh();
+        RunSummary {
+            scene: scene.name.clone(),
+            model: scene.model.name().into(),
+            element: scene.element.name().into(),
+            h: mesh.h_max(),
+            n_vertices: mesh.n_vertices(),
+            n_triangles: mesh.n_triangles(),
+            n_dofs: system.n_dofs(),
+            algorithm: report.algorithm.clone(),
+            iterations: report.iterations,
+            converged: report.converged,
+            stop_reason: report.stop_reason.clone(),
+            last_dual_step: report.last_dual_step(),
+            measures: report.measures,
+            alpha: report.alpha,
+            spectrum: report.spectrum,
+            errors,
+            attrs: data.root_attrs.clone(),
+            history: report.history.clone(),
+            solver_seconds: report.wall_seconds,
+            factor_seconds: report.factor_seconds,
+            solve_seconds: report.wall_seconds - report.factor_seconds,
+            wall_seconds: start.elapsed().as_secs_f64(),
+            peak_rss_mb: peak_rss_of(&data.solver_attrs),
+            result_file: out.to_path_buf(),
+        }
+    }
+
     /// A numeric root attribute of the result, by name.
     pub fn attr(&self, name: &str) -> Option<f64> {
         numeric_attr(&self.attrs, name)
@@ -173,13 +215,7 @@ impl RunSummary {
             },
             solver_seconds,
             factor_seconds,
-            peak_rss_mb: solver
-                .iter()
-                .filter_map(|(name, _)| {
-                    let phase = name.strip_prefix("peak_rss_mb_")?;
-                    Some((phase.to_string(), numeric_attr(solver, name)?))
-                })
-                .collect(),
+            peak_rss_mb: peak_rss_of(solver),
             solve_seconds: solver_seconds - factor_seconds,
             wall_seconds: number(solver, "/solver", RUN_SECONDS)?,
             result_file: path.to_path_buf(),
@@ -190,6 +226,8 @@ impl RunSummary {
 
 /// The `/solver` attribute with the run's wall time up to writing its result.
 const RUN_SECONDS: &str = "run_seconds";
+/// `/solver` attribute prefix of the peak RSS (MB) at each phase's end.
+const PEAK_RSS_PREFIX: &str = "peak_rss_mb_";
 
 /// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
 /// (writing `msh_path`).
@@ -325,6 +363,9 @@ pub fn output_folder(out: &Path) -> Result<&Path> {
 /// scene's plots beside it) in one [`OutputTransaction`]: all of them or,
 /// on any error, none, and never over an input of the run.
 pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
+    if scene.adapt.is_some() {
+        return crate::adapt::run_adaptive(scene, out).map(|(summary, _)| summary);
+    }
     let start = Instant::now();
     let dir = output_folder(out)?;
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
@@ -363,17 +404,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     .map_err(|e| guards::name_matrix_inputs(scene, e))?;
     phase_end("solve");
 
-    let mut data = system.results(&problem, &report);
-    data.scene_text = scene.text.clone();
-    let errors = if scene.output.errors {
-        system.exact_errors(&problem, &report)
-    } else {
-        None
-    };
-    if let Some(e) = &errors {
-        data.root_attrs.extend(e.attrs());
-    }
-    record_solver(&mut data, &scene.solver, &report);
+    let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
     // The run's time so far, for tables built later from the file (`study --from-results`).
     data.solver_attrs.push((
         RUN_SECONDS.into(),
@@ -382,7 +413,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     data.solver_attrs.extend(
         peak_rss_mb
             .iter()
-            .map(|(phase, mb)| (format!("peak_rss_mb_{phase}"), AttrValue::F64(*mb))),
+            .map(|(phase, mb)| (format!("{PEAK_RSS_PREFIX}{phase}"), AttrValue::F64(*mb))),
     );
     write_result(&staged_out, &mesh, &data)?;
     write_plots(
@@ -394,32 +425,15 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         errors.as_ref(),
     )?;
     outputs.commit()?;
-    Ok(RunSummary {
-        scene: scene.name.clone(),
-        model: scene.model.name().into(),
-        element: scene.element.name().into(),
-        h: mesh.h_max(),
-        n_vertices: mesh.n_vertices(),
-        n_triangles: mesh.n_triangles(),
-        n_dofs: system.n_dofs(),
-        algorithm: report.algorithm.clone(),
-        iterations: report.iterations,
-        converged: report.converged,
-        stop_reason: report.stop_reason.clone(),
-        last_dual_step: report.last_dual_step(),
-        measures: report.measures,
-        alpha: report.alpha,
-        spectrum: report.spectrum,
+    Ok(RunSummary::of_run(
+        scene,
+        system.as_ref(),
+        &report,
         errors,
-        attrs: data.root_attrs.clone(),
-        history: report.history.clone(),
-        solver_seconds: report.wall_seconds,
-        factor_seconds: report.factor_seconds,
-        solve_seconds: report.wall_seconds - report.factor_seconds,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        peak_rss_mb,
-        result_file: out.to_path_buf(),
-    })
+        &data,
+        start,
+        out,
+    ))
 }
 
 /// The model's contact problem, checked: finite, every multiplier acting
@@ -472,28 +486,102 @@ fn nested_start(
         return Ok(None);
     }
     let data = coarse_system.results(&coarse_problem, &report);
-    let dofs = prolong_dofs(&data, &coarse_mesh, system.mesh());
+    warm_start(
+        system,
+        problem,
+        &prolong_dofs(&data, &coarse_mesh, system.mesh()),
+    )
+}
+
+/// The warm start of `problem` from coefficient vectors prolonged onto its
+/// mesh (`/dofs` names): x from the model's unknowns, λ from `lambda`.
+/// None (start cold) when `lambda` is missing or does not fit, e.g. a
+/// multiplier space that does not prolong.
+pub fn warm_start(
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    dofs: &[(String, Vec<f64>)],
+) -> Result<Option<WarmStart>> {
     let lambda = dofs
         .iter()
         .find(|(name, _)| name == "lambda")
         .map(|(_, l)| l.clone())
         .filter(|l| l.len() == problem.n_multipliers());
     let Some(lambda) = lambda else {
-        return Ok(None); // a multiplier that does not prolong: start cold
+        return Ok(None);
     };
-    let x = system.primal_from_dofs(&dofs)?;
+    let x = system.primal_from_dofs(dofs)?;
     Ok((x.len() == problem.n()).then_some(WarmStart { x, lambda }))
 }
 
+/// The `/solver` attributes `peak_rss_mb_<phase>` (in their order) as (phase, MB).
+fn peak_rss_of(solver_attrs: &[(String, AttrValue)]) -> Vec<(String, f64)> {
+    solver_attrs
+        .iter()
+        .filter_map(|(name, _)| {
+            let phase = name.strip_prefix(PEAK_RSS_PREFIX)?;
+            Some((phase.to_string(), numeric_attr(solver_attrs, name)?))
+        })
+        .collect()
+}
+
+/// What a solve writes: the model's results, the scene text, the errors
+/// against the exact solution (`output.errors`), the `/solver` group and,
+/// for an adaptive scene or the "estimator" plot, the estimator.
+pub fn result_data(
+    scene: &Scene,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    report: &SolveReport,
+) -> (ResultData, Option<ExactErrors>) {
+    let mut data = system.results(problem, report);
+    data.scene_text = scene.text.clone();
+    let errors = if scene.output.errors {
+        system.exact_errors(problem, report)
+    } else {
+        None
+    };
+    if let Some(e) = &errors {
+        data.root_attrs.extend(e.attrs());
+    }
+    record_solver(&mut data, &scene.solver, report);
+    if scene.adapt.is_some() || scene.output.plots.contains(&PlotKind::Estimator) {
+        add_estimator(&mut data, system, problem, report);
+    }
+    (data, errors)
+}
+
+/// The model's a posteriori indicators as the cell field `estimator` and
+/// their total η = (Σ η_T²)^½ as the root attribute `estimator`; None (and
+/// nothing added) when the model has no estimator.
+fn add_estimator(
+    data: &mut ResultData,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    report: &SolveReport,
+) -> Option<f64> {
+    let eta = system.estimator(problem, report)?;
+    let total = eta.iter().map(|e| e * e).sum::<f64>().sqrt();
+    data.fields.push(Field {
+        name: "estimator".into(),
+        values: eta,
+        components: 1,
+        location: Location::Cell,
+    });
+    data.root_attrs
+        .push(("estimator".into(), AttrValue::F64(total)));
+    Some(total)
+}
+
 /// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
-fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
+pub fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
     let name = kind.name();
     out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))
 }
 
 /// The plots the scene asks for, beside the result file; nothing else is
 /// drawn. The solver's history is drawn here, every other figure by the model.
-fn write_plots(
+pub fn write_plots(
     scene: &Scene,
     out: &Path,
     system: &dyn ModelSystem,

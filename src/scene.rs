@@ -33,6 +33,8 @@ pub struct Scene {
     pub solver: SolverSpec,
     #[serde(default)]
     pub output: OutputSpec,
+    /// `[adapt]`: the adaptive loop (docs/formulation.md §8); None: one solve.
+    pub adapt: Option<AdaptSpec>,
     /// The scene file (for messages and relative paths).
     #[serde(skip)]
     pub source: PathBuf,
@@ -496,6 +498,29 @@ pub enum AlphaKeyword {
     Auto,
 }
 
+/// `[adapt]`: solve → estimate → mark → remesh, until the estimator reaches
+/// `target_error`, the next mesh would pass `max_dofs`, or `max_steps` solves.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AdaptSpec {
+    pub marking: Marking,
+    /// Dörfler's bulk parameter: the marked triangles carry ≥ θ of Σ η_T².
+    pub theta: f64,
+    /// Stop once η = (Σ η_T²)^½ ≤ target_error.
+    pub target_error: Option<f64>,
+    /// Stop before solving on a mesh with more than max_dofs unknowns.
+    pub max_dofs: Option<i64>,
+    /// At most this many solves (the first mesh included).
+    pub max_steps: i64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Marking {
+    /// Dörfler (bulk) marking with `theta`.
+    Dorfler,
+}
+
 #[derive(Debug, Clone, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub struct OutputSpec {
@@ -534,6 +559,8 @@ pub enum PlotKind {
     Contact,
     /// Convergence history of the KKT measures and the dual step.
     History,
+    /// The a posteriori indicator η_T per triangle (membrane).
+    Estimator,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
@@ -546,7 +573,7 @@ pub enum PlotFormat {
 
 impl PlotKind {
     /// Every kind, in the order of the declaration (the report page's order).
-    pub const ALL: [PlotKind; 9] = [
+    pub const ALL: [PlotKind; 10] = [
         PlotKind::U,
         PlotKind::U1,
         PlotKind::U2,
@@ -556,6 +583,7 @@ impl PlotKind {
         PlotKind::Gap,
         PlotKind::Contact,
         PlotKind::History,
+        PlotKind::Estimator,
     ];
 
     /// The kind's name in scenes and in plot file names (`RESULT.<name>.png`).
@@ -778,6 +806,58 @@ impl Scene {
             return Err(self.error(
                 "solver.cold_start",
                 "the cold start is an option of the active-set method",
+            ));
+        }
+        self.validate_adapt()?;
+        Ok(())
+    }
+
+    /// `[adapt]`: ranges, and what the loop needs (the membrane, a gmsh mesh, contact).
+    fn validate_adapt(&self) -> Result<()> {
+        let Some(a) = &self.adapt else {
+            return Ok(());
+        };
+        if !(a.theta.is_finite() && a.theta > 0.0 && a.theta <= 1.0) {
+            return Err(self.error(
+                "adapt.theta",
+                format!("Dörfler's θ must lie in (0, 1], got {}", a.theta),
+            ));
+        }
+        if let Some(t) = a.target_error {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(self.error(
+                    "adapt.target_error",
+                    format!("must be a finite number > 0, got {t}"),
+                ));
+            }
+        }
+        if let Some(n) = a.max_dofs {
+            if n < 1 {
+                return Err(self.error("adapt.max_dofs", format!("must be ≥ 1, got {n}")));
+            }
+        }
+        if !(1..=100).contains(&a.max_steps) {
+            return Err(self.error(
+                "adapt.max_steps",
+                format!("must be between 1 and 100, got {}", a.max_steps),
+            ));
+        }
+        if self.model != Model::Membrane {
+            return Err(self.error(
+                "adapt",
+                "the adaptive loop runs the membrane model only (the shell has no estimator yet)",
+            ));
+        }
+        if self.mesh.geo.is_none() {
+            return Err(self.error(
+                "adapt",
+                "the adaptive loop remeshes with gmsh: give `mesh.geo` (taking `n` and `h`), not `mesh.file`",
+            ));
+        }
+        if self.solver.nested {
+            return Err(self.error(
+                "adapt",
+                "the adaptive loop warm-starts each step from the previous one; drop `solver.nested`",
             ));
         }
         Ok(())

@@ -158,11 +158,12 @@ fn stored_components<'a>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::space::Element;
 
-    fn square(n: usize) -> Mesh {
+    /// The unit square, n × n cells cut along one diagonal (for unit tests).
+    pub(crate) fn square(n: usize) -> Mesh {
         let mut vertices = Vec::new();
         for j in 0..=n {
             for i in 0..=n {

@@ -17,6 +17,18 @@ impl Mesh {
             .map(|(i, &e)| (e, i))
             .collect()
     }
+    /// For each global edge, the triangles on either side: `[t, None]` on the
+    /// boundary, `[t1, Some(t2)]` inside (t1 < t2).
+    pub fn edge_triangles(&self) -> Vec<[Option<usize>; 2]> {
+        let mut sides = vec![[None, None]; self.n_edges()];
+        for (t, edges) in self.triangle_edges.iter().enumerate() {
+            for &e in edges {
+                let side = if sides[e][0].is_none() { 0 } else { 1 };
+                sides[e][side] = Some(t);
+            }
+        }
+        sides
+    }
     /// For each entry of `boundary_edges`, its global edge index.
     pub fn boundary_edge_global_indices(&self) -> Vec<usize> {
         let lookup = self.edge_lookup();

@@ -5,6 +5,7 @@
 //! dofs) → [`MembraneSystem::assemble`] (K, F, C, g, Riesz weights) → a solver
 //! from `solvers` → [`MembraneSystem::results`] (fields, errors).
 
+use super::estimator::{membrane_indicators, MembraneState};
 use super::exact::RadialObstacle;
 use super::{
     check_obstacle_below_fixed_boundary, contact_fields, named_boundary_tags, named_dofs,
@@ -258,6 +259,25 @@ impl ModelSystem for MembraneSystem<'_> {
             contact_radius: (area / std::f64::consts::PI).sqrt(),
             exact_contact_radius: exact.a,
         })
+    }
+
+    /// The residual estimator of docs/formulation.md §8 (`models::estimator`).
+    fn estimator(&self, _problem: &ContactProblem, report: &SolveReport) -> Option<Vec<f64>> {
+        let u = self.u_coefficients(report);
+        let phi = self
+            .obstacle
+            .as_ref()
+            .map(|o| move |x: [f64; 2]| o.value(x));
+        let state = MembraneState {
+            u_space: self.u_space,
+            u: &u,
+            multiplier: phi
+                .as_ref()
+                .map(|_| (self.lambda_space, report.lambda.as_slice())),
+            load: self.load,
+            obstacle: phi.as_ref().map(|f| f as &dyn Fn([f64; 2]) -> f64),
+        };
+        Some(membrane_indicators(&state).eta())
     }
 
     /// Fields and coefficient vectors for the result file (docs/formulation.md §5).

@@ -3,6 +3,7 @@
 //! answer back into fields. The pipeline sees a model only through
 //! [`ModelSystem`].
 
+pub mod estimator;
 pub mod exact;
 pub mod membrane;
 pub mod naghdi;
@@ -40,6 +41,11 @@ pub trait ModelSystem {
         _problem: &ContactProblem,
         _report: &SolveReport,
     ) -> Option<ExactErrors> {
+        None
+    }
+    /// The a posteriori error indicator η_T of every triangle
+    /// (docs/formulation.md §8), when the model has one.
+    fn estimator(&self, _problem: &ContactProblem, _report: &SolveReport) -> Option<Vec<f64>> {
         None
     }
     /// Draws one figure the scene asks for (all but the solver history) from
@@ -124,10 +130,11 @@ pub fn plot_result_field(
                 plot::plot_vertex_field(path, mesh, &values, title)?;
             }
         }
-        PlotKind::U | PlotKind::Lambda | PlotKind::Gap => {
+        PlotKind::U | PlotKind::Lambda | PlotKind::Gap | PlotKind::Estimator => {
             let name = match kind {
                 PlotKind::U => "u",
                 PlotKind::Lambda => "lambda",
+                PlotKind::Estimator => "estimator",
                 _ => "gap_mean",
             };
             if let Some(f) = figure.field(name) {

@@ -333,11 +333,10 @@ fn write_attr(loc: &H5Loc, owner: &str, name: &str, value: &AttrValue) -> Res<()
     }
 }
 
-/// Writes the whole layout into an open (new) file. All handles it opens are
-/// dropped on return, so the caller can close the file.
-fn write_layout(file: &File, mesh: &Mesh, data: &ResultData) -> Res<()> {
-    let root: &Group = file;
-
+/// Writes the whole layout into a new file's root or a step's group
+/// (`/steps/NNN`). All handles it opens are dropped on return, so the caller
+/// can close the file.
+fn write_layout(root: &Group, mesh: &Mesh, data: &ResultData) -> Res<()> {
     let g = new_group(root, "mesh")?;
     let nv = mesh.vertices.len();
     let nt = mesh.triangles.len();
@@ -404,8 +403,19 @@ fn write_layout(file: &File, mesh: &Mesh, data: &ResultData) -> Res<()> {
     Ok(())
 }
 
-/// Creates the HDF5 file at `tmp` (truncating it), writes the layout and closes it.
-fn write_h5_file(tmp: &Path, mesh: &Mesh, data: &ResultData) -> Res<()> {
+/// The group of step k of an adaptive result: `/steps/000`, `/steps/001`, ...
+pub fn step_group(k: usize) -> String {
+    format!("/steps/{k:03}")
+}
+
+/// Creates the HDF5 file at `tmp` (truncating it), writes the layout (and
+/// each of `steps` in its `/steps/NNN` group) and closes it.
+fn write_h5_file(
+    tmp: &Path,
+    mesh: &Mesh,
+    data: &ResultData,
+    steps: &[(&Mesh, &ResultData)],
+) -> Res<()> {
     let file = File::with_options()
         .with_fcpl(|p| {
             p.obj_track_times(false)
@@ -414,7 +424,16 @@ fn write_h5_file(tmp: &Path, mesh: &Mesh, data: &ResultData) -> Res<()> {
         .with_fapl(|p| p.fclose_degree(FileCloseDegree::Strong).file_locking(false))
         .create(tmp)
         .ctx(|| "creating the HDF5 file".to_string())?;
-    let written = write_layout(&file, mesh, data);
+    let written = write_layout(&file, mesh, data).and_then(|()| {
+        if steps.is_empty() {
+            return Ok(());
+        }
+        let g = new_group(&file, "steps")?;
+        steps.iter().enumerate().try_for_each(|(k, (m, d))| {
+            let name = step_group(k);
+            write_layout(&new_group(&g, &name["/steps/".len()..])?, m, d)
+        })
+    });
     // Close in every case (an error leaves a temporary that is removed anyway).
     let closed = file.close().ctx(|| "closing the HDF5 file".to_string());
     written?;
@@ -449,8 +468,33 @@ fn temp_in(dir: &Path, file_name: &str) -> Res<tempfile::NamedTempFile> {
 /// Errors are [`Error::Output`] naming `path`; nothing is written unless all the
 /// data are valid, and an existing `path` is left untouched on failure.
 pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
+    write_result_with_steps(path, mesh, data, &[])
+}
+
+/// An adaptive run's result (docs/formulation.md §5): the last step's layout at
+/// the root (what [`read_result`] and `obstacle info` read), every step's in
+/// `/steps/NNN`, and an XDMF temporal collection of the steps.
+pub fn write_adaptive_result(path: &Path, steps: &[(&Mesh, &ResultData)]) -> Result<()> {
+    let Some((mesh, data)) = steps.last() else {
+        return Err(Error::output(
+            path,
+            "an adaptive result needs at least one step",
+        ));
+    };
+    write_result_with_steps(path, mesh, data, steps)
+}
+
+fn write_result_with_steps(
+    path: &Path,
+    mesh: &Mesh,
+    data: &ResultData,
+    steps: &[(&Mesh, &ResultData)],
+) -> Result<()> {
     let fail = |reason: String| Error::output(path, reason);
     validate(mesh, data).map_err(fail)?;
+    for (k, (m, d)) in steps.iter().enumerate() {
+        validate(m, d).map_err(|e| fail(format!("{}: {e}", step_group(k))))?;
+    }
 
     let file_name = path
         .file_name()
@@ -486,7 +530,11 @@ pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
         .and_then(|n| n.to_str())
         .unwrap_or("result.xdmf")
         .to_string();
-    let xdmf_text = xdmf::render(&file_name, mesh, data);
+    let xdmf_text = if steps.is_empty() {
+        xdmf::render(&file_name, mesh, data)
+    } else {
+        xdmf::render_steps(&file_name, steps)
+    };
     // A shell's parameter domain gets its own companion (the main one is 3D).
     let domain = data.surface.as_ref().map(|_| {
         (
@@ -498,7 +546,7 @@ pub fn write_result(path: &Path, mesh: &Mesh, data: &ResultData) -> Result<()> {
     hdf5::silence_errors(true);
     // Both temporaries are removed when dropped, i.e. on every early return.
     let h5_tmp = temp_in(&dir, &file_name).map_err(fail)?;
-    write_h5_file(h5_tmp.path(), mesh, data).map_err(fail)?;
+    write_h5_file(h5_tmp.path(), mesh, data, steps).map_err(fail)?;
     finish_temp(&h5_tmp).map_err(fail)?;
 
     let mut x_tmp = temp_in(&dir, &xdmf_name).map_err(fail)?;
@@ -799,8 +847,7 @@ fn read_vector(g: &Group, name: &str, path: &str) -> Res<Vec<f64>> {
     read_f64(&ds, path)
 }
 
-fn read_layout(file: &File) -> Res<ResultFile> {
-    let root: &Group = file;
+fn read_layout(root: &Group) -> Res<ResultFile> {
     let mesh = open_group(root, "mesh", "/mesh")
         .map_err(|e| format!("{e} (not an obstacle-fem result file?)"))?;
     let ds = open_dataset(&mesh, "vertices", "/mesh/vertices")?;
@@ -930,6 +977,36 @@ pub fn read_result(path: &Path) -> Result<ResultFile> {
         })?;
     check_global_heaps(path).map_err(fail)?;
     read_layout(&file).map_err(fail)
+}
+
+/// The steps of an adaptive result (`/steps/NNN`, in order), each read like a
+/// result file; empty for a result of one solve.
+pub fn read_steps(path: &Path) -> Result<Vec<ResultFile>> {
+    let fail = |reason: String| Error::output(path, reason);
+    read_result(path)?; // the file's checks, and its root layout
+    let file = File::with_options()
+        .with_fapl(|p| p.file_locking(false))
+        .open(path)
+        .map_err(|e| fail(format!("not a readable HDF5 file: {e}")))?;
+    if !file.link_exists("steps") {
+        return Ok(Vec::new());
+    }
+    let g = open_group(&file, "steps", "/steps").map_err(fail)?;
+    let names = member_names(&g).map_err(fail)?;
+    names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            if *name != step_group(k)["/steps/".len()..] {
+                return Err(fail(format!(
+                    "/steps/{name}: expected {} (steps are numbered 000, 001, ... in order)",
+                    step_group(k)
+                )));
+            }
+            let step = open_group(&g, name, &step_group(k)).map_err(fail)?;
+            read_layout(&step).map_err(|e| fail(format!("{}: {e}", step_group(k))))
+        })
+        .collect()
 }
 
 /// The global heap collections ("GCOL", where variable-length strings live)

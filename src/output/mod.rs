@@ -83,7 +83,7 @@ pub struct ResultFile {
     pub version: String,
 }
 
-pub use hdf5_io::{program_version, read_result, write_result};
+pub use hdf5_io::{program_version, read_result, read_steps, write_adaptive_result, write_result};
 pub use transaction::OutputTransaction;
 pub use xdmf::{domain_xdmf_path, xdmf_path};
 

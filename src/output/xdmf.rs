@@ -80,40 +80,105 @@ pub fn render_domain(h5_file_name: &str, mesh: &Mesh, data: &ResultData) -> Stri
 
 /// The document on the 3D surface (`in_3d`) or on the parameter domain.
 fn render_view(h5_file_name: &str, mesh: &Mesh, data: &ResultData, in_3d: bool) -> String {
-    let nv = mesh.vertices.len();
-    let nt = mesh.triangles.len();
     let mut out = String::new();
+    open_document(&mut out);
+    render_grid(&mut out, "    ", h5_file_name, "", None, mesh, data, in_3d);
+    close_document(&mut out);
+    out
+}
+
+/// An adaptive result's steps as a temporal collection (`/steps/NNN`, time = step
+/// index), so ParaView plays them.
+pub fn render_steps(h5_file_name: &str, steps: &[(&Mesh, &ResultData)]) -> String {
+    let mut out = String::new();
+    open_document(&mut out);
+    out.push_str("    <Grid Name=\"steps\" GridType=\"Collection\" CollectionType=\"Temporal\">\n");
+    for (k, (mesh, data)) in steps.iter().enumerate() {
+        let group = super::hdf5_io::step_group(k);
+        let in_3d = data.surface.is_some();
+        render_grid(
+            &mut out,
+            "      ",
+            h5_file_name,
+            &group,
+            Some(k),
+            mesh,
+            data,
+            in_3d,
+        );
+    }
+    out.push_str("    </Grid>\n");
+    close_document(&mut out);
+    out
+}
+
+fn open_document(out: &mut String) {
     out.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
     out.push_str("<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n");
     out.push_str("<Xdmf Version=\"3.0\" xmlns:xi=\"http://www.w3.org/2001/XInclude\">\n");
     out.push_str("  <Domain>\n");
-    out.push_str("    <Grid Name=\"mesh\" GridType=\"Uniform\">\n");
+}
+
+fn close_document(out: &mut String) {
+    out.push_str("  </Domain>\n");
+    out.push_str("</Xdmf>\n");
+}
+
+/// One grid: the mesh and fields stored under `group` ("" for the root).
+#[allow(clippy::too_many_arguments)]
+fn render_grid(
+    out: &mut String,
+    indent: &str,
+    h5_file_name: &str,
+    group: &str,
+    time: Option<usize>,
+    mesh: &Mesh,
+    data: &ResultData,
+    in_3d: bool,
+) {
+    let nv = mesh.vertices.len();
+    let nt = mesh.triangles.len();
+    let inner = format!("{indent}  ");
+    let item = format!("{indent}    ");
+    let name = if group.is_empty() {
+        "mesh"
+    } else {
+        &group[1..]
+    };
     let _ = writeln!(
         out,
-        "      <Topology TopologyType=\"Triangle\" NumberOfElements=\"{nt}\" NodesPerElement=\"3\">"
+        "{indent}<Grid Name=\"{}\" GridType=\"Uniform\">",
+        xml_escape(name)
+    );
+    if let Some(t) = time {
+        let _ = writeln!(out, "{inner}<Time Value=\"{t}\"/>");
+    }
+    let _ = writeln!(
+        out,
+        "{inner}<Topology TopologyType=\"Triangle\" NumberOfElements=\"{nt}\" NodesPerElement=\"3\">"
     );
     data_item(
-        &mut out,
-        "        ",
+        out,
+        &item,
         &format!("{nt} 3"),
         "Int",
-        &format!("{h5_file_name}:/mesh/triangles"),
+        &format!("{h5_file_name}:{group}/mesh/triangles"),
     );
-    out.push_str("      </Topology>\n");
+    let _ = writeln!(out, "{inner}</Topology>");
     let (geometry, dims, dataset) = if in_3d {
         ("XYZ", format!("{nv} 3"), "/mesh/surface")
     } else {
         ("XY", format!("{nv} 2"), "/mesh/vertices")
     };
-    let _ = writeln!(out, "      <Geometry GeometryType=\"{geometry}\">");
+    let _ = writeln!(out, "{inner}<Geometry GeometryType=\"{geometry}\">");
     data_item(
-        &mut out,
-        "        ",
+        out,
+        &item,
         &dims,
         "Float",
-        &format!("{h5_file_name}:{dataset}"),
+        &format!("{h5_file_name}:{group}{dataset}"),
     );
-    out.push_str("      </Geometry>\n");
+    let _ = writeln!(out, "{inner}</Geometry>");
     for field in &data.fields {
         let (center, n) = match field.location {
             Location::Vertex => ("Node", nv),
@@ -126,21 +191,18 @@ fn render_view(h5_file_name: &str, mesh: &Mesh, data: &ResultData, in_3d: bool) 
         };
         let _ = writeln!(
             out,
-            "      <Attribute Name=\"{}\" AttributeType=\"{}\" Center=\"{center}\">",
+            "{inner}<Attribute Name=\"{}\" AttributeType=\"{}\" Center=\"{center}\">",
             xml_escape(&field.name),
             attribute_type(field.components)
         );
         data_item(
-            &mut out,
-            "        ",
+            out,
+            &item,
             &dims,
             "Float",
-            &format!("{h5_file_name}:/fields/{}", field.name),
+            &format!("{h5_file_name}:{group}/fields/{}", field.name),
         );
-        out.push_str("      </Attribute>\n");
+        let _ = writeln!(out, "{inner}</Attribute>");
     }
-    out.push_str("    </Grid>\n");
-    out.push_str("  </Domain>\n");
-    out.push_str("</Xdmf>\n");
-    out
+    let _ = writeln!(out, "{indent}</Grid>");
 }

@@ -1,0 +1,268 @@
+//! The residual a posteriori estimator of the membrane obstacle problem
+//! (docs/formulation.md §8), per triangle, for both pairs (P1⊕B3–P0, P2–P1):
+//!
+//! ```text
+//! η_T² = h_T² ‖g + λ_h + Δu_h‖²_T                 element residual (λ_h's consistency on the contact zone)
+//!      + ½ Σ_{E ⊂ ∂T interior} h_E ‖[∂_n u_h]‖²_E  flux jumps
+//!      + ∫_T λ_h⁺ (u_h − φ)⁺                       complementarity defect
+//!      + ‖∇(φ − u_h)⁺‖²_T                          penetration
+//! ```
+//!
+//! Δu_h is taken elementwise (the bubble and P2 have second derivatives).
+
+use crate::assembly::quad_points;
+use crate::mesh::Mesh;
+use crate::quadrature::{SegmentRule, TriangleRule};
+use crate::space::{Element, Space, TriangleGeometry, MAX_LOCAL};
+
+/// What the estimator reads: the discrete solution and the problem's data.
+pub struct MembraneState<'a> {
+    pub u_space: Space<'a>,
+    /// Full coefficients of u_h (Dirichlet values included).
+    pub u: &'a [f64],
+    /// λ_h's space and coefficients (with an obstacle).
+    pub multiplier: Option<(Space<'a>, &'a [f64])>,
+    /// The source term g of −Δu = g + λ.
+    pub load: f64,
+    /// The obstacle φ (with an obstacle).
+    pub obstacle: Option<&'a dyn Fn([f64; 2]) -> f64>,
+}
+
+/// The four squared contributions of every triangle (each ≥ 0).
+#[derive(Debug, Clone, Default)]
+pub struct Indicators {
+    pub residual: Vec<f64>,
+    pub jump: Vec<f64>,
+    pub complementarity: Vec<f64>,
+    pub penetration: Vec<f64>,
+}
+
+impl Indicators {
+    /// η_T per triangle.
+    pub fn eta(&self) -> Vec<f64> {
+        (0..self.residual.len())
+            .map(|t| {
+                (self.residual[t] + self.jump[t] + self.complementarity[t] + self.penetration[t])
+                    .sqrt()
+            })
+            .collect()
+    }
+
+    /// η = (Σ_T η_T²)^½.
+    pub fn total(&self) -> f64 {
+        self.eta().iter().map(|e| e * e).sum::<f64>().sqrt()
+    }
+}
+
+/// Second barycentric derivatives ∂²φ_i/∂λ_a∂λ_b of the local basis at `l`
+/// (zero for P0 and P1).
+fn basis_hessians(element: Element, l: [f64; 3]) -> [[[f64; 3]; 3]; MAX_LOCAL] {
+    let mut h = [[[0.0; 3]; 3]; MAX_LOCAL];
+    let bubble = |h: &mut [[f64; 3]; 3]| {
+        for a in 0..3 {
+            for b in 0..3 {
+                if a != b {
+                    h[a][b] = 27.0 * l[3 - a - b];
+                }
+            }
+        }
+    };
+    match element {
+        Element::P0 | Element::P1 => {}
+        Element::P1Bubble => bubble(&mut h[3]),
+        Element::P2 | Element::P2Bubble => {
+            for i in 0..3 {
+                h[i][i][i] = 4.0;
+                let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+                h[3 + i][j][k] = 4.0;
+                h[3 + i][k][j] = 4.0;
+            }
+            if element == Element::P2Bubble {
+                bubble(&mut h[6]);
+            }
+        }
+    }
+    h
+}
+
+/// Δu_h on triangle t at barycentric point `l`.
+fn laplacian(space: &Space, c: &[f64], g: &TriangleGeometry, t: usize, l: [f64; 3]) -> f64 {
+    let (dofs, n) = space.element_dofs(t);
+    let h = basis_hessians(space.element, l);
+    let gl = &g.grad_lambda;
+    let mut sum = 0.0;
+    for i in 0..n {
+        for a in 0..3 {
+            for b in 0..3 {
+                if h[i][a][b] != 0.0 {
+                    let metric = gl[a][0] * gl[b][0] + gl[a][1] * gl[b][1];
+                    sum += c[dofs[i]] * h[i][a][b] * metric;
+                }
+            }
+        }
+    }
+    sum
+}
+
+/// ∇u_h on triangle t at barycentric point `l`.
+fn gradient(space: &Space, c: &[f64], g: &TriangleGeometry, t: usize, l: [f64; 3]) -> [f64; 2] {
+    let (dofs, n) = space.element_dofs(t);
+    let b = space.element.basis(l);
+    let mut grad = [0.0; 2];
+    for i in 0..n {
+        let gi = g.gradient(b.d_lambda[i]);
+        grad[0] += c[dofs[i]] * gi[0];
+        grad[1] += c[dofs[i]] * gi[1];
+    }
+    grad
+}
+
+/// Longest edge of triangle t (h_T).
+fn diameter(mesh: &Mesh, t: usize) -> f64 {
+    mesh.triangle_edges[t]
+        .iter()
+        .map(|&e| mesh.edge_length(e))
+        .fold(0.0, f64::max)
+}
+
+/// The barycentric coordinates in triangle t of the point (1 − s) a + s b of its edge [a, b].
+fn on_edge(mesh: &Mesh, t: usize, [a, b]: [usize; 2], s: f64) -> [f64; 3] {
+    let mut l = [0.0; 3];
+    for (k, &v) in mesh.triangles[t].iter().enumerate() {
+        if v == a {
+            l[k] = 1.0 - s;
+        } else if v == b {
+            l[k] = s;
+        }
+    }
+    l
+}
+
+/// The indicators of every triangle (docs/formulation.md §8).
+pub fn membrane_indicators(state: &MembraneState) -> Indicators {
+    let space = &state.u_space;
+    let mesh = space.mesh;
+    let nt = mesh.n_triangles();
+    // Degree 6 covers (g + λ_h + Δu_h)² for both pairs exactly; the positive
+    // parts in the contact terms are resolved to quadrature accuracy only.
+    let rule = TriangleRule::exact_for(6);
+    let mut ind = Indicators {
+        residual: vec![0.0; nt],
+        jump: vec![0.0; nt],
+        complementarity: vec![0.0; nt],
+        penetration: vec![0.0; nt],
+    };
+    for t in 0..nt {
+        let g = TriangleGeometry::new(mesh, t);
+        let h = diameter(mesh, t);
+        for p in quad_points(&g, t, &rule) {
+            let lambda = state
+                .multiplier
+                .map_or(0.0, |(ls, lc)| ls.evaluate(lc, t, p.lambda));
+            let r = state.load + lambda + laplacian(space, state.u, &g, t, p.lambda);
+            ind.residual[t] += p.weight * h * h * r * r;
+            if let Some(phi) = state.obstacle {
+                let gap = space.evaluate(state.u, t, p.lambda) - phi(p.x);
+                ind.complementarity[t] += p.weight * lambda.max(0.0) * gap.max(0.0);
+                if gap < 0.0 {
+                    // ∇φ by central differences: φ is data, not an FE function.
+                    let d = 1e-6;
+                    let dphi = [
+                        (phi([p.x[0] + d, p.x[1]]) - phi([p.x[0] - d, p.x[1]])) / (2.0 * d),
+                        (phi([p.x[0], p.x[1] + d]) - phi([p.x[0], p.x[1] - d])) / (2.0 * d),
+                    ];
+                    let du = gradient(space, state.u, &g, t, p.lambda);
+                    ind.penetration[t] +=
+                        p.weight * ((dphi[0] - du[0]).powi(2) + (dphi[1] - du[1]).powi(2));
+                }
+            }
+        }
+    }
+    // ∇u_h is quadratic (P1⊕B3) or linear (P2) along an edge: degree 4 is exact for the jump².
+    let segment = SegmentRule::exact_for(4);
+    for (e, sides) in mesh.edge_triangles().iter().enumerate() {
+        let [Some(t1), Some(t2)] = *sides else {
+            continue;
+        };
+        let [a, b] = mesh.edges[e];
+        let (pa, pb) = (mesh.vertices[a], mesh.vertices[b]);
+        let len = mesh.edge_length(e);
+        let normal = [(pb[1] - pa[1]) / len, (pa[0] - pb[0]) / len];
+        let (g1, g2) = (
+            TriangleGeometry::new(mesh, t1),
+            TriangleGeometry::new(mesh, t2),
+        );
+        let mut jump2 = 0.0;
+        for (&s, &w) in segment.points.iter().zip(&segment.weights) {
+            let d1 = gradient(space, state.u, &g1, t1, on_edge(mesh, t1, [a, b], s));
+            let d2 = gradient(space, state.u, &g2, t2, on_edge(mesh, t2, [a, b], s));
+            let j = (d1[0] - d2[0]) * normal[0] + (d1[1] - d2[1]) * normal[1];
+            jump2 += w * len * j * j;
+        }
+        // h_E ‖[∂_n u_h]‖²_E, half to each side.
+        ind.jump[t1] += 0.5 * len * jump2;
+        ind.jump[t2] += 0.5 * len * jump2;
+    }
+    ind
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transfer::tests::square;
+
+    /// Δ of interpolated quadratics is exact for P2 and P2⊕B3 (Δ(x² + 3xy − 2y²) = −2),
+    /// and the interpolant of a global quadratic has no flux jumps; with g = 2 the
+    /// residual vanishes too.
+    #[test]
+    fn quadratics_have_zero_residual_and_jumps() {
+        let mesh = square(3);
+        let f = |x: [f64; 2]| x[0] * x[0] + 3.0 * x[0] * x[1] - 2.0 * x[1] * x[1];
+        for element in [Element::P2, Element::P2Bubble] {
+            let space = Space::new(&mesh, element);
+            let u = space.interpolate(f);
+            let ind = membrane_indicators(&MembraneState {
+                u_space: space,
+                u: &u,
+                multiplier: None,
+                load: 2.0,
+                obstacle: None,
+            });
+            let total = ind.total();
+            assert!(total < 1e-12, "{element:?}: η = {total:e}");
+        }
+    }
+
+    /// The bubble's Laplacian: Δ(27 λ1λ2λ3) integrates to ∮∂_n b = 0 over T,
+    /// and equals −27·2·(∇λ1·∇λ2 + …) pointwise; checked against finite differences.
+    #[test]
+    fn bubble_laplacian_matches_finite_differences() {
+        let mesh = Mesh::from_triangles(
+            vec![[0.0, 0.0], [1.0, 0.2], [0.3, 0.9]],
+            vec![[0, 1, 2]],
+            "one".into(),
+        )
+        .unwrap();
+        let space = Space::new(&mesh, Element::P1Bubble);
+        let c = [0.0, 0.0, 0.0, 1.0];
+        let g = TriangleGeometry::new(&mesh, 0);
+        let l = [0.2, 0.5, 0.3];
+        let x = g.point(l);
+        // b at a physical point through its barycentric coordinates.
+        let bary = |p: [f64; 2]| {
+            let gl = &g.grad_lambda;
+            let v = g.vertices;
+            let l1 = 1.0 + gl[0][0] * (p[0] - v[0][0]) + gl[0][1] * (p[1] - v[0][1]);
+            let l2 = gl[1][0] * (p[0] - v[0][0]) + gl[1][1] * (p[1] - v[0][1]);
+            [l1, l2, 1.0 - l1 - l2]
+        };
+        let b = |p: [f64; 2]| space.evaluate(&c, 0, bary(p));
+        let d = 1e-4;
+        let fd =
+            (b([x[0] + d, x[1]]) + b([x[0] - d, x[1]]) + b([x[0], x[1] + d]) + b([x[0], x[1] - d])
+                - 4.0 * b(x))
+                / (d * d);
+        let exact = laplacian(&space, &c, &g, 0, l);
+        assert!((fd - exact).abs() < 1e-5 * exact.abs(), "{fd} vs {exact}");
+    }
+}
