@@ -31,8 +31,8 @@ use crate::models::named_boundary_tags;
 use crate::output::{write_result, AttrValue, OutputTransaction, ResultData};
 use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
-    Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, ShellSpec, StepForm,
-    StopRule,
+    Alpha, BoundaryCondition, ElementPair, Expression, Model, ObstacleShape, Scene, ShellSpec,
+    StepForm, StopRule,
 };
 use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -357,7 +357,18 @@ pub fn script_args(
                     "the FreeFEM membrane script needs an obstacle",
                 ));
             };
-            let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
+            let g = constant_only(
+                scene,
+                "load.g",
+                scene.load.as_ref().and_then(|l| l.g.as_ref()),
+            )?;
+            if obstacle.shape != ObstacleShape::Paraboloid || scene.mesh.dirichlet_value.is_some() {
+                return Err(scene_error(
+                    scene,
+                    "obstacle.shape",
+                    "the FreeFEM membrane script takes the paraboloid with u = 0 on the boundary",
+                ));
+            }
             a.extend([
                 "-element".into(),
                 scene.element.name().into(),
@@ -406,7 +417,7 @@ pub fn script_args(
                 "-rho".into(),
                 f(shell.rho.unwrap_or(0.0)),
             ]);
-            a.extend(material_and_load_args(scene, shell));
+            a.extend(material_and_load_args(scene, shell)?);
             a.extend(plane_level_args(scene)?);
         }
     }
@@ -471,7 +482,7 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
     for (key, value) in params {
         a.extend([key.into(), f(value)]);
     }
-    a.extend(material_and_load_args(scene, shell));
+    a.extend(material_and_load_args(scene, shell)?);
     let fix = psri_fix_spec(scene, mesh)?;
     if !fix.is_empty() {
         a.extend(["-fix".into(), fix]);
@@ -482,9 +493,13 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
 
 /// `-E -nu -eps` and the body force `-f1 -f2 -f3` of a shell scene, as both
 /// shell scripts take them.
-fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Vec<String> {
-    let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
-    [
+fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Result<Vec<String>> {
+    let f = scene.load.as_ref().and_then(|l| l.f.as_ref());
+    let mut load = [0.0; 3];
+    for (c, value) in load.iter_mut().enumerate() {
+        *value = constant_only(scene, &format!("load.f[{c}]"), f.map(|f| &f[c]))?;
+    }
+    Ok([
         ("-E", shell.young),
         ("-nu", shell.poisson),
         ("-eps", shell.thickness),
@@ -494,7 +509,24 @@ fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Vec<String> {
     ]
     .into_iter()
     .flat_map(|(key, value)| [key.to_string(), format!("{value:e}")])
-    .collect()
+    .collect())
+}
+
+/// A scene value the FreeFEM scripts take as a number (0 when absent).
+fn constant_only(scene: &Scene, key: &str, value: Option<&Expression>) -> Result<f64> {
+    match value {
+        None => Ok(0.0),
+        Some(e) => e.as_constant().ok_or_else(|| {
+            scene_error(
+                scene,
+                key,
+                format!(
+                    "the FreeFEM script takes a number here, not the expression \"{}\"",
+                    e.text()
+                ),
+            )
+        }),
+    }
 }
 
 /// `-level Z` of a shell scene's rigid plane (nothing without an obstacle).

@@ -15,6 +15,7 @@
 pub mod assembly;
 pub mod bench;
 pub mod error;
+pub mod expression;
 pub mod freefem;
 pub mod gmsh;
 pub mod guards;
