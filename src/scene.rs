@@ -887,13 +887,15 @@ impl Scene {
                         ));
                     }
                 }
-                shape => return Err(self.error(
-                    "obstacle.shape",
-                    format!(
+                shape => {
+                    return Err(self.error(
+                        "obstacle.shape",
+                        format!(
                         "the membrane takes shape = \"paraboloid\" or \"expression\", not \"{}\"",
                         shape.name()
                     ),
-                )),
+                    ))
+                }
             }
         }
         if self.output.probe.is_some() {
