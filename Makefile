@@ -85,9 +85,12 @@ FF_SETS = $(foreach s,$(SET),--set $(s))
 FF_NAME = $(basename $(notdir $(SCENE)))
 # scene:overrides, the scene below pipelines/scenes/ without .toml, the overrides
 # KEY=VALUE joined by commas (empty: the scene as it is). shell/hypar-psri is
-# the element p2b-psri (freefem/naghdi-psri.edp), run by Uzawa here.
+# the element p2b-psri (freefem/naghdi-psri.edp), run by Uzawa here; peers/two-sided
+# an expression load and a two-sided obstacle (the script's scene functions).
 COMPARE_CASES = obstacle-disk:element=p1b-p0 obstacle-disk:element=p2-p1 naghdi-hypar: naghdi-hypar-free: \
-	shell/hypar-psri:solver.method=uzawa,solver.alpha=auto,solver.step_form=mean
+	shell/hypar-psri:solver.method=uzawa,solver.alpha=auto,solver.step_form=mean \
+	peers/two-sided:solver.method=uzawa,solver.alpha=auto,solver.step_form=mean \
+	peers/two-sided:element=p2-p1,solver.method=uzawa,solver.alpha=auto,solver.step_form=mean
 TIMING_CASES = naghdi-hypar:mesh.n=16 naghdi-hypar:mesh.n=32 naghdi-hypar:mesh.n=64 obstacle-disk:mesh.n=16
 # The shell helpers of the two tables: wall clock, one /solver attribute of a result.
 FF_SH = now() { date +%s.%N; }; \

@@ -357,17 +357,22 @@ pub fn script_args(
                     "the FreeFEM membrane script needs an obstacle",
                 ));
             };
-            let g = constant_only(
-                scene,
-                "load.g",
-                scene.load.as_ref().and_then(|l| l.g.as_ref()),
-            )?;
-            if obstacle.shape != ObstacleShape::Paraboloid || scene.mesh.dirichlet_value.is_some() {
-                return Err(scene_error(
-                    scene,
-                    "obstacle.shape",
-                    "the FreeFEM membrane script takes the paraboloid with u = 0 on the boundary",
-                ));
+            // An expression load or obstacle reaches the script as `func`s
+            // (`scene_functions`); -g, -height, -curvature stay its defaults.
+            let g = scene
+                .load
+                .as_ref()
+                .and_then(|l| l.g.as_ref())
+                .map_or(Some(0.0), Expression::as_constant)
+                .unwrap_or(0.0);
+            if let Some(g_d) = &scene.mesh.dirichlet_value {
+                if g_d.as_constant() != Some(0.0) {
+                    return Err(scene_error(
+                        scene,
+                        "mesh.dirichlet_value",
+                        "the FreeFEM membrane script holds u = 0 on the boundary: remove the key to compare",
+                    ));
+                }
             }
             a.extend([
                 "-element".into(),
@@ -510,6 +515,54 @@ fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Result<Vec<String
     .into_iter()
     .flat_map(|(key, value)| [key.to_string(), format!("{value:e}")])
     .collect())
+}
+
+/// The `func`s of a membrane scene with expressions, in FreeFEM's syntax, for
+/// the script's "scene functions" block; None when the script's defaults
+/// (constant g, the paraboloid) are the scene.
+fn scene_functions(scene: &Scene) -> Option<String> {
+    let g = scene.load.as_ref().and_then(|l| l.g.as_ref());
+    let obstacle = scene.obstacle.as_ref()?;
+    let expression_load = g.is_some_and(|g| g.as_constant().is_none());
+    if scene.model != Model::Membrane || (obstacle.lower.is_none() && !expression_load) {
+        return None;
+    }
+    let mut text = match g {
+        Some(g) => format!("func gFun = {};\n", g.freefem()),
+        None => "func gFun = 0.;\n".to_string(),
+    };
+    match &obstacle.lower {
+        Some(lower) => text.push_str(&format!("func phi = {};\n", lower.freefem())),
+        None => text.push_str("func phi = height - curvature * (x^2 + y^2);\n"),
+    }
+    match &obstacle.upper {
+        Some(upper) => text.push_str(&format!(
+            "func phiUpper = {};\nbool twoSided = true;\n",
+            upper.freefem()
+        )),
+        None => text.push_str("func phiUpper = 0.;\nbool twoSided = false;\n"),
+    }
+    Some(text)
+}
+
+/// A copy of `script` in `folder` whose "scene functions" block (between its
+/// `// BEGIN scene functions` and `// END scene functions` lines) is `functions`.
+fn with_scene_functions(script: &Path, functions: &str, folder: &Path) -> Result<PathBuf> {
+    let text = std::fs::read_to_string(script)
+        .map_err(|e| tool_error(script, format!("cannot read: {e}")))?;
+    let (Some(begin), Some(end)) = (
+        text.find("// BEGIN scene functions"),
+        text.find("// END scene functions"),
+    ) else {
+        return Err(tool_error(
+            script,
+            "has no `// BEGIN scene functions` … `// END scene functions` block for the scene's expressions",
+        ));
+    };
+    let copy = folder.join(script.file_name().unwrap_or_default());
+    let body = format!("{}{functions}{}", &text[..begin], &text[end..]);
+    std::fs::write(&copy, body).map_err(|e| Error::output(&copy, format!("cannot write: {e}")))?;
+    Ok(copy)
 }
 
 /// A scene value the FreeFEM scripts take as a number (0 when absent).
@@ -867,7 +920,11 @@ pub fn run_freefem_scene(
     let _on_signal = crate::output::transaction::RemoveOnSignal::new(work.path());
     let prefix = work.path().join("ff");
     let args = script_args(scene, &mesh, &msh, plan.as_ref(), &prefix)?;
-    let wall_seconds = run_script_checked(&script, &args)?;
+    let run_script = match scene_functions(scene) {
+        None => script.clone(),
+        Some(functions) => with_scene_functions(&script, &functions, work.path())?,
+    };
+    let wall_seconds = run_script_checked(&run_script, &args)?;
 
     let file = |ext: &str| PathBuf::from(format!("{}.{ext}", prefix.display()));
     check_mesh_order(&mesh, &file("mesh.txt"))?;
@@ -1070,7 +1127,9 @@ impl TwinSolution {
             lambda: Vec::new(),
             contact: Vec::new(),
         };
-        if scene.obstacle.is_some() {
+        if let Some(obstacle) = &scene.obstacle {
+            // Two-sided: the lower then the upper multipliers.
+            let n_lambda = n_lambda * if obstacle.upper.is_some() { 2 } else { 1 };
             twin.lambda = read_len(&file("lambda.txt"), n_lambda)?;
             twin.contact = vec![
                 ("phi", read_len(&file("phi.txt"), nv)?, file("phi.txt")),
