@@ -531,10 +531,23 @@ pub struct OutputSpec {
     pub plots: Vec<PlotKind>,
     #[serde(default)]
     pub plot_format: PlotFormat,
+    /// Membrane: a known exact solution other than the disk's, for `errors`.
+    pub exact: Option<ExactSpec>,
     /// Shell: a point of ω where the displacement is recorded (root
     /// attributes `probe_u1`, `probe_u2`, `probe_u3`), e.g. the point of a
     /// benchmark's reference deflection.
     pub probe: Option<[f64; 2]>,
+}
+
+/// An exact solution of a membrane scene (`[output.exact]`): errors of u in
+/// L² and H¹ (∇u by central differences of `u`), of λ in L², and the contact radius.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExactSpec {
+    pub u: Expression,
+    pub lambda: Expression,
+    /// The radius of the exact contact set (√(area/π) if it is not a disk).
+    pub contact_radius: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -901,6 +914,12 @@ impl Scene {
         if self.output.probe.is_some() {
             return Err(self.error("output.probe", "the probe records a shell's displacement"));
         }
+        if let Some(exact) = &self.output.exact {
+            self.check_finite("output.exact.contact_radius", exact.contact_radius)?;
+            if !self.output.errors {
+                return Err(self.error("output.exact", "an exact solution is for `errors = true`"));
+            }
+        }
         if let Some(k) = self.output.plots.iter().find(|k| k.shell_only()) {
             return Err(self.error(
                 "output.plots",
@@ -1068,7 +1087,7 @@ impl Scene {
                 "boundary values are the membrane's; the shell fixes its parts at 0 (shell.boundary)",
             ));
         }
-        if self.output.errors {
+        if self.output.errors || self.output.exact.is_some() {
             return Err(self.error(
                 "output.errors",
                 "no exact solution is known for the shell; errors against a finer mesh come from a study",

@@ -19,7 +19,7 @@ use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
 use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
-use crate::scene::{ElementPair, Expression, ObstacleSpec, Scene};
+use crate::scene::{ElementPair, ExactSpec, Expression, ObstacleSpec, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
 
@@ -37,6 +37,8 @@ pub struct MembraneSystem<'m> {
     pub phi: Option<Vec<f64>>,
     /// ψ₂,h: the upper obstacle's P1 interpolant (two-sided scenes).
     pub upper: Option<Vec<f64>>,
+    /// The scene's exact solution (`[output.exact]`), when it states one.
+    pub exact: Option<ExactSpec>,
     /// u at every dof from the boundary values g_D (`mesh.dirichlet_value`);
     /// only the fixed dofs' entries are used. All 0 without boundary values.
     pub boundary_values: Vec<f64>,
@@ -160,6 +162,7 @@ impl<'m> MembraneSystem<'m> {
             phi,
             upper,
             boundary_values,
+            exact: scene.output.exact.clone(),
             simulated,
         })
     }
@@ -204,6 +207,50 @@ impl<'m> MembraneSystem<'m> {
     /// Rows of the lower obstacle: λ has this many entries per bound.
     fn n_rows(&self) -> usize {
         self.lambda_space.n_dofs()
+    }
+}
+
+/// What errors are measured against: the disk's radial solution or a scene's.
+enum ExactSolution {
+    Radial(RadialObstacle),
+    Given(ExactSpec),
+}
+
+impl ExactSolution {
+    fn u(&self, x: [f64; 2]) -> f64 {
+        match self {
+            ExactSolution::Radial(e) => e.u(x),
+            ExactSolution::Given(e) => e.u.eval(x),
+        }
+    }
+
+    /// ∇u; a scene's u by central differences (error O(h²) ≈ 1e-10, far
+    /// below the discretisation error measured).
+    fn grad_u(&self, x: [f64; 2]) -> [f64; 2] {
+        match self {
+            ExactSolution::Radial(e) => e.grad_u(x),
+            ExactSolution::Given(e) => {
+                let h = 1e-5 * (1.0 + x[0].abs().max(x[1].abs()));
+                let d = |dx: f64, dy: f64| {
+                    (e.u.eval([x[0] + dx, x[1] + dy]) - e.u.eval([x[0] - dx, x[1] - dy])) / (2.0 * h)
+                };
+                [d(h, 0.0), d(0.0, h)]
+            }
+        }
+    }
+
+    fn lambda(&self, x: [f64; 2]) -> f64 {
+        match self {
+            ExactSolution::Radial(e) => e.lambda(x),
+            ExactSolution::Given(e) => e.lambda.eval(x),
+        }
+    }
+
+    fn contact_radius(&self) -> f64 {
+        match self {
+            ExactSolution::Radial(e) => e.a,
+            ExactSolution::Given(e) => e.contact_radius,
+        }
     }
 }
 
@@ -273,6 +320,10 @@ fn check_exact_solution_applies(
             reason: format!("errors are measured against the exact solution on the unit disk (docs/formulation.md §1), but {reason}"),
         })
     };
+    if scene.output.exact.is_some() {
+        // The scene states its exact solution (checked finite in `ExactSolution::of`).
+        return Ok(());
+    }
     if !dirichlet_everywhere {
         return refuse("mesh.dirichlet names only some boundary parts".into());
     }
@@ -389,17 +440,21 @@ impl ModelSystem for MembraneSystem<'_> {
         })
     }
 
-    /// Errors against the exact radial solution, when the scene is that case.
+    /// Errors against the exact solution: the scene's `[output.exact]`, or
+    /// the radial one when the scene is the disk case.
     fn exact_errors(&self, problem: &ContactProblem, report: &SolveReport) -> Option<ExactErrors> {
         let (obstacle, constraint) = (self.obstacle.as_ref()?, problem.constraint.as_ref()?);
-        if obstacle.shape != crate::scene::ObstacleShape::Paraboloid {
-            return None;
-        }
-        let exact = RadialObstacle::new(
-            self.load.as_constant()?,
-            obstacle.level(),
-            obstacle.curvature.unwrap_or(0.0),
-        )?;
+        let exact = match &self.exact {
+            Some(given) => ExactSolution::Given(given.clone()),
+            None if obstacle.shape == crate::scene::ObstacleShape::Paraboloid => {
+                ExactSolution::Radial(RadialObstacle::new(
+                    self.load.as_constant()?,
+                    obstacle.level(),
+                    obstacle.curvature.unwrap_or(0.0),
+                )?)
+            }
+            None => return None,
+        };
         let u = self.u_coefficients(report);
         // The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
         // a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
@@ -426,7 +481,7 @@ impl ModelSystem for MembraneSystem<'_> {
             h1: h1.iter().sum::<f64>().sqrt(),
             lambda_l2: lam.iter().sum::<f64>().sqrt(),
             contact_radius: (area / std::f64::consts::PI).sqrt(),
-            exact_contact_radius: exact.a,
+            exact_contact_radius: exact.contact_radius(),
         })
     }
 
