@@ -232,7 +232,8 @@ impl ExactSolution {
             ExactSolution::Given(e) => {
                 let h = 1e-5 * (1.0 + x[0].abs().max(x[1].abs()));
                 let d = |dx: f64, dy: f64| {
-                    (e.u.eval([x[0] + dx, x[1] + dy]) - e.u.eval([x[0] - dx, x[1] - dy])) / (2.0 * h)
+                    (e.u.eval([x[0] + dx, x[1] + dy]) - e.u.eval([x[0] - dx, x[1] - dy]))
+                        / (2.0 * h)
                 };
                 [d(h, 0.0), d(0.0, h)]
             }
