@@ -25,8 +25,10 @@ use exmex::{
 };
 use serde::Deserialize;
 
+type Function = fn(f64) -> f64;
+
 /// The functions of one argument, by scene name.
-const UNARY: [(&str, fn(f64) -> f64); 7] = [
+const UNARY: [(&str, Function); 7] = [
     ("sqrt", f64::sqrt),
     ("exp", f64::exp),
     ("ln", f64::ln),
@@ -98,7 +100,7 @@ enum Input {
 enum Node {
     Constant(f64),
     Formula {
-        compiled: Compiled,
+        compiled: Box<Compiled>,
         inputs: Vec<Input>,
     },
     If(Box<[Node; 3]>),
@@ -540,6 +542,7 @@ fn compile(
             }
         })
         .collect();
+    let compiled = Box::new(compiled);
     Ok((Node::Formula { compiled, inputs }, format!("({freefem})")))
 }
 

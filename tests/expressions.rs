@@ -51,7 +51,7 @@ fn bad_expressions_name_their_key() {
         ),
     ];
     for (sets, expected) in cases {
-        let o = solve_scene(TWO_SIDED, &out, &[&sets[0], "mesh.n=4"]);
+        let o = solve_scene(TWO_SIDED, &out, &[sets[0], "mesh.n=4"]);
         assert_one_error(&o, expected, sets[0]);
         assert!(!out.exists(), "{}: no result after an error", sets[0]);
     }

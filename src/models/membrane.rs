@@ -213,7 +213,7 @@ impl<'m> MembraneSystem<'m> {
 /// What errors are measured against: the disk's radial solution or a scene's.
 enum ExactSolution {
     Radial(RadialObstacle),
-    Given(ExactSpec),
+    Given(Box<ExactSpec>),
 }
 
 impl ExactSolution {
@@ -446,7 +446,7 @@ impl ModelSystem for MembraneSystem<'_> {
     fn exact_errors(&self, problem: &ContactProblem, report: &SolveReport) -> Option<ExactErrors> {
         let (obstacle, constraint) = (self.obstacle.as_ref()?, problem.constraint.as_ref()?);
         let exact = match &self.exact {
-            Some(given) => ExactSolution::Given(given.clone()),
+            Some(given) => ExactSolution::Given(Box::new(given.clone())),
             None if obstacle.shape == crate::scene::ObstacleShape::Paraboloid => {
                 ExactSolution::Radial(RadialObstacle::new(
                     self.load.as_constant()?,
