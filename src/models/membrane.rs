@@ -12,7 +12,7 @@ use super::{
 };
 use crate::assembly::{
     assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
-    mass, quad_points, DofNumbering,
+    mass, quadrature_points, DofNumbering,
 };
 use crate::error::{Error, Result};
 use crate::linalg::MatrixKind;
@@ -263,16 +263,6 @@ const MEMBRANE_RULE: usize = 5;
 /// (P1⊕B3–P0 its P1 interpolant).
 fn pair_uses_quadrature(pair: ElementPair) -> bool {
     pair != ElementPair::P1bP0
-}
-
-/// Every quadrature point of the rule on the mesh.
-fn quadrature_points(mesh: &Mesh, rule: &TriangleRule) -> Vec<[f64; 2]> {
-    (0..mesh.n_triangles())
-        .flat_map(|t| {
-            let g = TriangleGeometry::new(mesh, t);
-            quad_points(&g, t, rule).map(|q| q.x).collect::<Vec<_>>()
-        })
-        .collect()
 }
 
 /// The point of every dof of a Lagrange space (its node), bubbles at the centroid.

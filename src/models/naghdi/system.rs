@@ -18,7 +18,7 @@ use super::forms::{
     scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
 };
 use super::geometry::{obstacle_function, Chart, Material};
-use crate::assembly::{quad_points, DofNumbering};
+use crate::assembly::{quad_points, quadrature_points, DofNumbering};
 use crate::error::{Error, Result};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::{
@@ -292,7 +292,10 @@ impl<'m> NaghdiSystem<'m> {
         let body_force = load
             .and_then(|l| l.f.clone())
             .unwrap_or_else(|| std::array::from_fn(|_| Expression::constant(0.0)));
-        let rule_points = quadrature_points_of(mesh);
+        // Where assembly evaluates the body force and the P1 constraint the
+        // obstacle: Radon's 7 points (the PSRI passes' lower-degree rules are
+        // not checked separately).
+        let rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
         for (c, f) in body_force.iter().enumerate() {
             let key = format!("load.f[{c}]");
             f.check_finite_at(&key, rule_points.iter().copied())
@@ -839,17 +842,4 @@ fn plot_constraint(path: &Path, mesh: &Mesh, w: &[f64], phi: &[f64], title: &str
         "z",
         &format!("{title}: profiles"),
     )
-}
-
-/// The quadrature points where the shell's assembly evaluates the body force
-/// and the P1 constraint evaluates the obstacle (Radon's 7 points; the PSRI
-/// passes use rules of lower degree, whose points are not checked separately).
-fn quadrature_points_of(mesh: &Mesh) -> Vec<[f64; 2]> {
-    let rule = TriangleRule::exact_for(5);
-    (0..mesh.n_triangles())
-        .flat_map(|t| {
-            let g = crate::space::TriangleGeometry::new(mesh, t);
-            quad_points(&g, t, &rule).map(|q| q.x).collect::<Vec<_>>()
-        })
-        .collect()
 }
