@@ -85,9 +85,12 @@ FF_SETS = $(foreach s,$(SET),--set $(s))
 FF_NAME = $(basename $(notdir $(SCENE)))
 # scene:overrides, the scene below pipelines/scenes/ without .toml, the overrides
 # KEY=VALUE joined by commas (empty: the scene as it is). shell/hypar-psri is
-# the element p2b-psri (freefem/naghdi-psri.edp), run by Uzawa here.
+# the element p2b-psri (freefem/naghdi-psri.edp), run by Uzawa here; peers/two-sided
+# an expression load and a two-sided obstacle (the script's scene functions).
 COMPARE_CASES = obstacle-disk:element=p1b-p0 obstacle-disk:element=p2-p1 naghdi-hypar: naghdi-hypar-free: \
-	shell/hypar-psri:solver.method=uzawa,solver.alpha=auto,solver.step_form=mean
+	shell/hypar-psri:solver.method=uzawa,solver.alpha=auto,solver.step_form=mean \
+	peers/two-sided:solver.method=uzawa,solver.alpha=auto,solver.step_form=mean \
+	peers/two-sided:element=p2-p1,solver.method=uzawa,solver.alpha=auto,solver.step_form=mean
 TIMING_CASES = naghdi-hypar:mesh.n=16 naghdi-hypar:mesh.n=32 naghdi-hypar:mesh.n=64 obstacle-disk:mesh.n=16
 # The shell helpers of the two tables: wall clock, one /solver attribute of a result.
 FF_SH = now() { date +%s.%N; }; \
@@ -209,3 +212,30 @@ hard-psri: build
 paraview: naghdi
 	mkdir -p $(BUILD)/paraview
 	xvfb-run -a pvbatch pipelines/paraview/render_shell.py $(BUILD)/results/naghdi-hypar.xdmf $(BUILD)/paraview/naghdi-hypar.png
+
+# Issue 17: peers' obstacle examples (pipelines/scenes/peers/) beside their
+# published numbers, one table: build/peers/peers.md and peers.csv.
+.PHONY: peers
+PEERS := $(BUILD)/peers
+# `obstacle info FILE` line "  KEY = VALUE" → VALUE (the first one).
+info_value = $$($(BIN) info $(1) | awk -F' = ' '$$1 == "  $(2)" { print $$2; exit }')
+peers: build
+	@mkdir -p $(PEERS)
+	$(BIN) solve pipelines/scenes/peers/step-41.toml --quiet --out $(PEERS)/step-41.h5
+	$(BIN) solve pipelines/scenes/peers/freefem-vi.toml --quiet --out $(PEERS)/freefem-vi.h5
+	$(BIN) solve pipelines/scenes/peers/two-sided.toml --quiet --out $(PEERS)/two-sided.h5
+	FF_LOADPATH=/usr/lib/freefem++ FreeFem++ -nw -v 0 freefem/peers/vi.edp -out $(PEERS)/freefem-vi.ff > $(PEERS)/freefem-vi.ff.log 2>&1
+	$(BIN) study pipelines/studies/peers-ball.toml --out-dir $(PEERS) > $(PEERS)/peers-ball.log
+	@ff() { awk -v k="$$1" '$$1 == k { print $$2 }' $(PEERS)/freefem-vi.ff.info.txt; }; \
+	{ echo "case,quantity,ours,peer,peer source"; \
+	  echo "step-41,active multipliers (final),$(call info_value,$(PEERS)/step-41.h5,active),5399,deal.II step-41 results page (Q1 128x128)"; \
+	  echo "step-41,active-set iterations,$(call info_value,$(PEERS)/step-41.h5,iterations),18,deal.II step-41 results page"; \
+	  echo "freefem-vi,active upper multipliers,$(call info_value,$(PEERS)/freefem-vi.h5,active),$$(ff locked),FreeFEM tutorial VI.edp run here (P1 20x20)"; \
+	  echo "freefem-vi,active-set iterations,$(call info_value,$(PEERS)/freefem-vi.h5,iterations),$$(ff iterations),FreeFEM tutorial VI.edp run here"; \
+	  echo "two-sided,active multipliers (both bounds),$(call info_value,$(PEERS)/two-sided.h5,active),–,no peer (a two-sided case of ours)"; \
+	} > $(PEERS)/peers.csv
+	@{ echo "# Peers' obstacle examples"; echo; \
+	  echo "| case | quantity | ours | peer | peer source |"; echo "|---|---|---:|---:|---|"; \
+	  tail -n +2 $(PEERS)/peers.csv | sed 's/,/ | /g; s/^/| /; s/$$/ |/'; echo; \
+	  cat $(PEERS)/peers-ball.md; } > $(PEERS)/peers.md
+	@cat $(PEERS)/peers.md

@@ -88,6 +88,17 @@ pub fn quad_points<'a>(
         })
 }
 
+/// Every quadrature point of the rule on the mesh, triangle by triangle: where
+/// assembly evaluates data given as expressions (checked finite there).
+pub fn quadrature_points(mesh: &crate::mesh::Mesh, rule: &TriangleRule) -> Vec<[f64; 2]> {
+    (0..mesh.n_triangles())
+        .flat_map(|t| {
+            let g = TriangleGeometry::new(mesh, t);
+            quad_points(&g, t, rule).map(|q| q.x).collect::<Vec<_>>()
+        })
+        .collect()
+}
+
 /// Coordinate-format matrix entries (duplicates are summed on conversion).
 #[derive(Debug, Clone, Default)]
 pub struct Triplets {

@@ -31,8 +31,8 @@ use crate::models::named_boundary_tags;
 use crate::output::{write_result, AttrValue, OutputTransaction, ResultData};
 use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
-    Alpha, BoundaryCondition, ElementPair, Model, ObstacleShape, Scene, ShellSpec, StepForm,
-    StopRule,
+    Alpha, BoundaryCondition, ElementPair, Expression, Model, ObstacleShape, Scene, ShellSpec,
+    StepForm, StopRule,
 };
 use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -357,7 +357,23 @@ pub fn script_args(
                     "the FreeFEM membrane script needs an obstacle",
                 ));
             };
-            let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
+            // An expression load or obstacle reaches the script as `func`s
+            // (`scene_functions`); -g, -height, -curvature stay its defaults.
+            let g = scene
+                .load
+                .as_ref()
+                .and_then(|l| l.g.as_ref())
+                .map_or(Some(0.0), Expression::as_constant)
+                .unwrap_or(0.0);
+            if let Some(g_d) = &scene.mesh.dirichlet_value {
+                if g_d.as_constant() != Some(0.0) {
+                    return Err(scene_error(
+                        scene,
+                        "mesh.dirichlet_value",
+                        "the FreeFEM membrane script holds u = 0 on the boundary: remove the key to compare",
+                    ));
+                }
+            }
             a.extend([
                 "-element".into(),
                 scene.element.name().into(),
@@ -406,7 +422,7 @@ pub fn script_args(
                 "-rho".into(),
                 f(shell.rho.unwrap_or(0.0)),
             ]);
-            a.extend(material_and_load_args(scene, shell));
+            a.extend(material_and_load_args(scene, shell)?);
             a.extend(plane_level_args(scene)?);
         }
     }
@@ -471,7 +487,7 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
     for (key, value) in params {
         a.extend([key.into(), f(value)]);
     }
-    a.extend(material_and_load_args(scene, shell));
+    a.extend(material_and_load_args(scene, shell)?);
     let fix = psri_fix_spec(scene, mesh)?;
     if !fix.is_empty() {
         a.extend(["-fix".into(), fix]);
@@ -482,9 +498,13 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
 
 /// `-E -nu -eps` and the body force `-f1 -f2 -f3` of a shell scene, as both
 /// shell scripts take them.
-fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Vec<String> {
-    let load = scene.load.as_ref().and_then(|l| l.f).unwrap_or([0.0; 3]);
-    [
+fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Result<Vec<String>> {
+    let f = scene.load.as_ref().and_then(|l| l.f.as_ref());
+    let mut load = [0.0; 3];
+    for (c, value) in load.iter_mut().enumerate() {
+        *value = constant_only(scene, &format!("load.f[{c}]"), f.map(|f| &f[c]))?;
+    }
+    Ok([
         ("-E", shell.young),
         ("-nu", shell.poisson),
         ("-eps", shell.thickness),
@@ -494,7 +514,72 @@ fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Vec<String> {
     ]
     .into_iter()
     .flat_map(|(key, value)| [key.to_string(), format!("{value:e}")])
-    .collect()
+    .collect())
+}
+
+/// The `func`s of a membrane scene with expressions, in FreeFEM's syntax, for
+/// the script's "scene functions" block; None when the script's defaults
+/// (constant g, the paraboloid) are the scene.
+fn scene_functions(scene: &Scene) -> Option<String> {
+    let g = scene.load.as_ref().and_then(|l| l.g.as_ref());
+    let obstacle = scene.obstacle.as_ref()?;
+    let expression_load = g.is_some_and(|g| g.as_constant().is_none());
+    if scene.model != Model::Membrane || (obstacle.lower.is_none() && !expression_load) {
+        return None;
+    }
+    let mut text = match g {
+        Some(g) => format!("func gFun = {};\n", g.freefem()),
+        None => "func gFun = 0.;\n".to_string(),
+    };
+    match &obstacle.lower {
+        Some(lower) => text.push_str(&format!("func phi = {};\n", lower.freefem())),
+        None => text.push_str("func phi = height - curvature * (x^2 + y^2);\n"),
+    }
+    match &obstacle.upper {
+        Some(upper) => text.push_str(&format!(
+            "func phiUpper = {};\nbool twoSided = true;\n",
+            upper.freefem()
+        )),
+        None => text.push_str("func phiUpper = 0.;\nbool twoSided = false;\n"),
+    }
+    Some(text)
+}
+
+/// A copy of `script` in `folder` whose "scene functions" block (between its
+/// `// BEGIN scene functions` and `// END scene functions` lines) is `functions`.
+fn with_scene_functions(script: &Path, functions: &str, folder: &Path) -> Result<PathBuf> {
+    let text = std::fs::read_to_string(script)
+        .map_err(|e| tool_error(script, format!("cannot read: {e}")))?;
+    let (Some(begin), Some(end)) = (
+        text.find("// BEGIN scene functions"),
+        text.find("// END scene functions"),
+    ) else {
+        return Err(tool_error(
+            script,
+            "has no `// BEGIN scene functions` … `// END scene functions` block for the scene's expressions",
+        ));
+    };
+    let copy = folder.join(script.file_name().unwrap_or_default());
+    let body = format!("{}{functions}{}", &text[..begin], &text[end..]);
+    std::fs::write(&copy, body).map_err(|e| Error::output(&copy, format!("cannot write: {e}")))?;
+    Ok(copy)
+}
+
+/// A scene value the FreeFEM scripts take as a number (0 when absent).
+fn constant_only(scene: &Scene, key: &str, value: Option<&Expression>) -> Result<f64> {
+    match value {
+        None => Ok(0.0),
+        Some(e) => e.as_constant().ok_or_else(|| {
+            scene_error(
+                scene,
+                key,
+                format!(
+                    "the FreeFEM script takes a number here, not the expression \"{}\"",
+                    e.text()
+                ),
+            )
+        }),
+    }
 }
 
 /// `-level Z` of a shell scene's rigid plane (nothing without an obstacle).
@@ -835,7 +920,11 @@ pub fn run_freefem_scene(
     let _on_signal = crate::output::transaction::RemoveOnSignal::new(work.path());
     let prefix = work.path().join("ff");
     let args = script_args(scene, &mesh, &msh, plan.as_ref(), &prefix)?;
-    let wall_seconds = run_script_checked(&script, &args)?;
+    let run_script = match scene_functions(scene) {
+        None => script.clone(),
+        Some(functions) => with_scene_functions(&script, &functions, work.path())?,
+    };
+    let wall_seconds = run_script_checked(&run_script, &args)?;
 
     let file = |ext: &str| PathBuf::from(format!("{}.{ext}", prefix.display()));
     check_mesh_order(&mesh, &file("mesh.txt"))?;
@@ -1038,7 +1127,9 @@ impl TwinSolution {
             lambda: Vec::new(),
             contact: Vec::new(),
         };
-        if scene.obstacle.is_some() {
+        if let Some(obstacle) = &scene.obstacle {
+            // Two-sided: the lower then the upper multipliers.
+            let n_lambda = n_lambda * if obstacle.upper.is_some() { 2 } else { 1 };
             twin.lambda = read_len(&file("lambda.txt"), n_lambda)?;
             twin.contact = vec![
                 ("phi", read_len(&file("phi.txt"), nv)?, file("phi.txt")),

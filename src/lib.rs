@@ -17,6 +17,7 @@ pub mod adapt;
 pub mod assembly;
 pub mod bench;
 pub mod error;
+pub mod expression;
 pub mod freefem;
 pub mod gmsh;
 pub mod guards;

@@ -7,6 +7,8 @@
 //! overridden from the command line (`--set solver.alpha=0.9`).
 
 use crate::error::{Error, Result};
+/// A number or an expression in x, y, r (src/expression.rs).
+pub use crate::expression::Expression;
 /// The solver vocabulary the scene's strings map onto (it belongs to solvers/).
 pub use crate::solvers::{DualNorm, StepForm, StopRule};
 use serde::Deserialize;
@@ -100,6 +102,8 @@ pub struct MeshSpec {
     /// Physical names of the boundary parts where the Dirichlet condition holds
     /// (default: the whole boundary).
     pub dirichlet: Option<Vec<String>>,
+    /// The membrane's boundary values u = g_D on the Dirichlet parts (default 0).
+    pub dirichlet_value: Option<Expression>,
     /// The memory a run may use, in GB (default: half of MemAvailable);
     /// a scene whose estimate is above it is refused (src/guards.rs).
     pub memory_limit_gb: Option<f64>,
@@ -112,10 +116,11 @@ pub struct MeshSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LoadSpec {
-    /// Constant source term g of −Δu = g (membrane).
-    pub g: Option<f64>,
-    /// Constant force per unit area f = (f1, f2, f3) (shell): L(V) ∋ ∫ f·v √a dx.
-    pub f: Option<[f64; 3]>,
+    /// Source term g(x, y) of −Δu = g (membrane): a number or an expression.
+    pub g: Option<Expression>,
+    /// Force per unit area f = (f1, f2, f3) (shell), each a number or an
+    /// expression: L(V) ∋ ∫ f·v √a dx.
+    pub f: Option<[Expression; 3]>,
     /// Tractions N and moments M on parts γ1 of the boundary (shell).
     #[serde(default)]
     pub edge: Vec<EdgeLoadSpec>,
@@ -338,9 +343,14 @@ impl ShellSpec {
 pub struct ObstacleSpec {
     pub shape: ObstacleShape,
     /// Paraboloid: φ(0, 0). Rigid plane: the plane z = height (default 0).
-    pub height: Option<f64>,
+    /// Rigid surface: the body fills z < height(x, y) (an expression).
+    pub height: Option<Expression>,
     /// k in φ = height − k (x² + y²) (paraboloid only).
     pub curvature: Option<f64>,
+    /// Shape "expression" (membrane): u ≥ lower(x, y).
+    pub lower: Option<Expression>,
+    /// Shape "expression" (membrane), optional: u ≤ upper(x, y), the two-sided problem.
+    pub upper: Option<Expression>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -348,28 +358,41 @@ pub struct ObstacleSpec {
 pub enum ObstacleShape {
     /// Membrane: φ(x, y) = height − curvature · (x² + y²).
     Paraboloid,
+    /// Membrane: lower ≤ u (≤ upper) with expressions in x, y, r.
+    Expression,
     /// Shell: the rigid half-space z < height below the shell (docs/formulation.md §2).
     RigidPlane,
+    /// Shell: the rigid body z < height(x, y) below the shell (docs/formulation.md §2.1).
+    RigidSurface,
 }
 
 impl ObstacleShape {
     pub fn name(self) -> &'static str {
         match self {
             ObstacleShape::Paraboloid => "paraboloid",
+            ObstacleShape::Expression => "expression",
             ObstacleShape::RigidPlane => "rigid-plane",
+            ObstacleShape::RigidSurface => "rigid-surface",
         }
     }
 }
 
 impl ObstacleSpec {
-    /// The height: φ(0, 0) or the plane's level.
+    /// The height when a number: φ(0, 0) or the plane's level (default 0);
+    /// validation requires a number for the paraboloid and the plane.
     pub fn level(&self) -> f64 {
-        self.height.unwrap_or(0.0)
+        self.height
+            .as_ref()
+            .and_then(Expression::as_constant)
+            .unwrap_or(0.0)
     }
 
-    /// The membrane obstacle φ(x) (paraboloid).
+    /// The membrane's lower obstacle ψ₁(x): the paraboloid or `lower`.
     pub fn value(&self, x: [f64; 2]) -> f64 {
-        self.level() - self.curvature.unwrap_or(0.0) * (x[0] * x[0] + x[1] * x[1])
+        match &self.lower {
+            Some(lower) => lower.eval(x),
+            None => self.level() - self.curvature.unwrap_or(0.0) * (x[0] * x[0] + x[1] * x[1]),
+        }
     }
 }
 
@@ -533,10 +556,23 @@ pub struct OutputSpec {
     pub plots: Vec<PlotKind>,
     #[serde(default)]
     pub plot_format: PlotFormat,
+    /// Membrane: a known exact solution other than the disk's, for `errors`.
+    pub exact: Option<ExactSpec>,
     /// Shell: a point of ω where the displacement is recorded (root
     /// attributes `probe_u1`, `probe_u2`, `probe_u3`), e.g. the point of a
     /// benchmark's reference deflection.
     pub probe: Option<[f64; 2]>,
+}
+
+/// An exact solution of a membrane scene (`[output.exact]`): errors of u in
+/// L² and H¹ (∇u by central differences of `u`), of λ in L², and the contact radius.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExactSpec {
+    pub u: Expression,
+    pub lambda: Expression,
+    /// The radius of the exact contact set (√(area/π) if it is not a disk).
+    pub contact_radius: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -723,7 +759,17 @@ impl Scene {
             }
         }
         if let Some(o) = &self.obstacle {
-            finite("obstacle.height", o.level())?;
+            let surface = matches!(o.shape, ObstacleShape::RigidSurface);
+            match o.height.as_ref().map(|h| (h.as_constant(), h.text())) {
+                Some((None, text)) if !surface => {
+                    return Err(self.error(
+                        "obstacle.height",
+                        format!("shape \"{}\" takes a number, not \"{text}\" (an expression height is shape = \"rigid-surface\")", o.shape.name()),
+                    ))
+                }
+                Some((Some(h), _)) => finite("obstacle.height", h)?,
+                _ => {}
+            }
             finite("obstacle.curvature", o.curvature.unwrap_or(0.0))?;
         }
         match self.model {
@@ -792,6 +838,12 @@ impl Scene {
                 return Err(self.error(
                     "solver.nested",
                     "nested iteration warm-starts active-set or dual-accelerated only",
+                ));
+            }
+            if self.obstacle.as_ref().is_some_and(|o| o.upper.is_some()) {
+                return Err(self.error(
+                    "solver.nested",
+                    "nested iteration carries a one-sided multiplier; the two-sided problem starts cold",
                 ));
             }
             if self.mesh.n.is_none() || self.mesh.geo.is_none() {
@@ -871,8 +923,19 @@ impl Scene {
             .ok_or_else(|| self.error("load", "the membrane model needs `[load] g = ...`"))?;
         let g = load
             .g
+            .as_ref()
             .ok_or_else(|| self.error("load.g", "the membrane model needs the source term g"))?;
-        self.check_finite("load.g", g)?;
+        if let Some(g) = g.as_constant() {
+            self.check_finite("load.g", g)?;
+        }
+        if let Some(v) = self
+            .mesh
+            .dirichlet_value
+            .as_ref()
+            .and_then(Expression::as_constant)
+        {
+            self.check_finite("mesh.dirichlet_value", v)?;
+        }
         if load.f.is_some() || !load.edge.is_empty() {
             return Err(self.error(
                 "load",
@@ -889,21 +952,53 @@ impl Scene {
             ));
         }
         if let Some(o) = &self.obstacle {
-            if o.shape != ObstacleShape::Paraboloid {
-                return Err(self.error(
-                    "obstacle.shape",
-                    format!(
-                        "the membrane takes shape = \"paraboloid\", not \"{}\"",
-                        o.shape.name()
+            match o.shape {
+                ObstacleShape::Paraboloid => {
+                    if o.height.is_none() {
+                        return Err(
+                            self.error("obstacle.height", "the paraboloid needs φ(0,0) = height")
+                        );
+                    }
+                    if o.lower.is_some() || o.upper.is_some() {
+                        return Err(self.error(
+                            "obstacle.lower",
+                            "`lower` and `upper` go with shape = \"expression\"",
+                        ));
+                    }
+                }
+                ObstacleShape::Expression => {
+                    if o.lower.is_none() {
+                        return Err(self.error(
+                            "obstacle.lower",
+                            "shape = \"expression\" needs `lower = \"<expression in x, y, r>\"` (u ≥ lower)",
+                        ));
+                    }
+                    if o.height.is_some() || o.curvature.is_some() {
+                        return Err(self.error(
+                            "obstacle.height",
+                            "`height` and `curvature` belong to the paraboloid; shape = \"expression\" takes `lower` (and `upper`)",
+                        ));
+                    }
+                }
+                shape => {
+                    return Err(self.error(
+                        "obstacle.shape",
+                        format!(
+                        "the membrane takes shape = \"paraboloid\" or \"expression\", not \"{}\"",
+                        shape.name()
                     ),
-                ));
-            }
-            if o.height.is_none() {
-                return Err(self.error("obstacle.height", "the paraboloid needs φ(0,0) = height"));
+                    ))
+                }
             }
         }
         if self.output.probe.is_some() {
             return Err(self.error("output.probe", "the probe records a shell's displacement"));
+        }
+        if let Some(exact) = &self.output.exact {
+            self.check_finite("output.exact.contact_radius", exact.contact_radius)?;
+            if !self.output.errors {
+                return Err(self.error("output.exact", "an exact solution is for `errors = true`"));
+            }
         }
         if let Some(k) = self.output.plots.iter().find(|k| k.shell_only()) {
             return Err(self.error(
@@ -1022,7 +1117,9 @@ impl Scene {
                 ));
             }
             for (i, v) in load.f.iter().flatten().enumerate() {
-                self.check_finite(&format!("load.f[{i}]"), *v)?;
+                if let Some(v) = v.as_constant() {
+                    self.check_finite(&format!("load.f[{i}]"), v)?;
+                }
             }
             for (e, edge) in load.edge.iter().enumerate() {
                 for (i, v) in edge.traction.iter().chain(&edge.moment).enumerate() {
@@ -1047,14 +1144,30 @@ impl Scene {
             }
         }
         if let Some(o) = &self.obstacle {
-            if o.shape != ObstacleShape::RigidPlane || o.curvature.is_some() {
+            let shell_shape = matches!(
+                o.shape,
+                ObstacleShape::RigidPlane | ObstacleShape::RigidSurface
+            );
+            if !shell_shape || o.curvature.is_some() || o.lower.is_some() || o.upper.is_some() {
                 return Err(self.error(
                     "obstacle.shape",
-                    "the shell's obstacle is shape = \"rigid-plane\" (optional height, no curvature)",
+                    "the shell's obstacle is shape = \"rigid-plane\" (optional height, a number) or \"rigid-surface\" (height = an expression in x, y, r)",
+                ));
+            }
+            if o.shape == ObstacleShape::RigidSurface && o.height.is_none() {
+                return Err(self.error(
+                    "obstacle.height",
+                    "shape = \"rigid-surface\" needs height = \"<expression in x, y, r>\" (the body fills z < height)",
                 ));
             }
         }
-        if self.output.errors {
+        if self.mesh.dirichlet_value.is_some() {
+            return Err(self.error(
+                "mesh.dirichlet_value",
+                "boundary values are the membrane's; the shell fixes its parts at 0 (shell.boundary)",
+            ));
+        }
+        if self.output.errors || self.output.exact.is_some() {
             return Err(self.error(
                 "output.errors",
                 "no exact solution is known for the shell; errors against a finer mesh come from a study",

@@ -164,3 +164,43 @@ fn bad_adapt_input_gets_clear_errors() {
         "{message}"
     );
 }
+
+/// The two-sided case (`peers/two-sided`, issue 17) through the adaptive
+/// loop: each bound enters the estimator with its own multiplier (the
+/// residual sees λ₁ − λ₂), η_T > 0 and finite on every triangle, and the
+/// loop refines (dofs grow) while both bounds stay in contact.
+#[test]
+fn two_sided_obstacles_are_estimated_and_adapted() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("two-sided.h5");
+    let o = solve_scene(
+        "peers/two-sided",
+        &out,
+        &[
+            "mesh.n=8",
+            "adapt.marking=\"dorfler\"",
+            "adapt.max_steps=3",
+            "adapt.theta=0.5",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let steps = read_steps(&out).unwrap();
+    assert_eq!(steps.len(), 3);
+    for (k, step) in steps.iter().enumerate() {
+        let eta = field(step, "estimator");
+        assert!(
+            eta.iter().all(|e| e.is_finite() && *e > 0.0),
+            "step {k}: η_T"
+        );
+        for bound in ["lambda_lower", "lambda_upper"] {
+            let active = field(step, bound).iter().filter(|&&l| l > 0.0).count();
+            assert!(active > 0, "step {k}: no {bound} contact");
+        }
+        if k > 0 {
+            assert!(
+                step.triangles.len() > steps[k - 1].triangles.len(),
+                "step {k} did not refine"
+            );
+        }
+    }
+}

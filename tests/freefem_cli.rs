@@ -126,6 +126,46 @@ fn freefem_command_matches_rust_after_k_iterations() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("uzawa (FreeFEM)"));
 }
 
+/// An expression load and a two-sided obstacle reach the script as `func`s;
+/// after K iterations both bounds' multipliers agree with Rust to round-off.
+#[test]
+fn freefem_twin_takes_expressions_and_two_sided_obstacles() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for element in ["p1b-p0", "p2-p1"] {
+        let mut extra = set_args(&[
+            "mesh.n=6",
+            &format!("element={element}"),
+            "solver.method=uzawa",
+            "solver.alpha=auto",
+            "solver.step_form=mean",
+        ]);
+        extra.extend(fixed_k());
+        let rust = solve(d, &format!("rust-{element}"), "peers/two-sided", &extra);
+        let ff = freefem(d, &format!("ff-{element}"), "peers/two-sided", &extra);
+        let fields = [
+            "u",
+            "lambda",
+            "lambda_lower",
+            "lambda_upper",
+            "gap_mean",
+            "gap_upper_mean",
+            "phi",
+            "phi_upper",
+        ];
+        assert_agree(&rust, &ff, RTOL, &fields, &format!("two-sided {element}"));
+        let upper = read_result(&ff).unwrap();
+        let active = common::field(&upper, "lambda_upper")
+            .iter()
+            .filter(|&&l| l > 0.0)
+            .count();
+        assert!(
+            active > 0,
+            "{element}: the upper bound is active in FreeFEM's run"
+        );
+    }
+}
+
 #[test]
 fn compare_fails_beyond_tolerance_and_on_bad_input() {
     let dir = tempfile::tempdir().unwrap();

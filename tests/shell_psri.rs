@@ -257,7 +257,8 @@ fn stiffness_times(
         poisson: 0.3,
         thickness,
     };
-    let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, [0.0; 3]);
+    let zero = [0.0; 3].map(obstacle_fem::expression::Expression::constant);
+    let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, &zero);
     let scale = a.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()));
     let mut x = vec![0.0; layout.n_total()];
     for (f, fl) in layout.fields.iter().enumerate() {

@@ -20,12 +20,19 @@ pub struct MembraneState<'a> {
     pub u_space: Space<'a>,
     /// Full coefficients of u_h (Dirichlet values included).
     pub u: &'a [f64],
-    /// λ_h's space and coefficients (with an obstacle).
-    pub multiplier: Option<(Space<'a>, &'a [f64])>,
     /// The source term g of −Δu = g + λ.
-    pub load: f64,
-    /// The obstacle φ (with an obstacle).
-    pub obstacle: Option<&'a dyn Fn([f64; 2]) -> f64>,
+    pub load: &'a dyn Fn([f64; 2]) -> f64,
+    /// The obstacles (none, the lower one, or lower and upper).
+    pub bounds: Vec<Bound<'a>>,
+}
+
+/// One obstacle with its multiplier: u ≥ ψ (`sign` = +1, lower) or u ≤ ψ
+/// (`sign` = −1, upper); it enters −Δu = g + Σ sign·λ.
+pub struct Bound<'a> {
+    pub obstacle: &'a dyn Fn([f64; 2]) -> f64,
+    /// λ_h's space and coefficients (λ ≥ 0).
+    pub multiplier: (Space<'a>, &'a [f64]),
+    pub sign: f64,
 }
 
 /// The four squared contributions of every triangle (each ≥ 0).
@@ -156,24 +163,35 @@ pub fn membrane_indicators(state: &MembraneState) -> Indicators {
         let g = TriangleGeometry::new(mesh, t);
         let h = diameter(mesh, t);
         for p in quad_points(&g, t, &rule) {
-            let lambda = state
-                .multiplier
-                .map_or(0.0, |(ls, lc)| ls.evaluate(lc, t, p.lambda));
-            let r = state.load + lambda + laplacian(space, state.u, &g, t, p.lambda);
+            let lambdas: Vec<f64> = state
+                .bounds
+                .iter()
+                .map(|b| b.multiplier.0.evaluate(b.multiplier.1, t, p.lambda))
+                .collect();
+            let net: f64 = state
+                .bounds
+                .iter()
+                .zip(&lambdas)
+                .map(|(b, l)| b.sign * l)
+                .sum();
+            let r = (state.load)(p.x) + net + laplacian(space, state.u, &g, t, p.lambda);
             ind.residual[t] += p.weight * h * h * r * r;
-            if let Some(phi) = state.obstacle {
-                let gap = space.evaluate(state.u, t, p.lambda) - phi(p.x);
+            let u = space.evaluate(state.u, t, p.lambda);
+            for (bound, lambda) in state.bounds.iter().zip(&lambdas) {
+                let psi = bound.obstacle;
+                // The gap in the direction the bound allows: u − ψ (lower), ψ − u (upper).
+                let gap = bound.sign * (u - psi(p.x));
                 ind.complementarity[t] += p.weight * lambda.max(0.0) * gap.max(0.0);
                 if gap < 0.0 {
-                    // ∇φ by central differences: φ is data, not an FE function.
+                    // ∇ψ by central differences: ψ is data, not an FE function.
                     let d = 1e-6;
-                    let dphi = [
-                        (phi([p.x[0] + d, p.x[1]]) - phi([p.x[0] - d, p.x[1]])) / (2.0 * d),
-                        (phi([p.x[0], p.x[1] + d]) - phi([p.x[0], p.x[1] - d])) / (2.0 * d),
+                    let dpsi = [
+                        (psi([p.x[0] + d, p.x[1]]) - psi([p.x[0] - d, p.x[1]])) / (2.0 * d),
+                        (psi([p.x[0], p.x[1] + d]) - psi([p.x[0], p.x[1] - d])) / (2.0 * d),
                     ];
                     let du = gradient(space, state.u, &g, t, p.lambda);
                     ind.penetration[t] +=
-                        p.weight * ((dphi[0] - du[0]).powi(2) + (dphi[1] - du[1]).powi(2));
+                        p.weight * ((dpsi[0] - du[0]).powi(2) + (dpsi[1] - du[1]).powi(2));
                 }
             }
         }
@@ -224,9 +242,8 @@ mod tests {
             let ind = membrane_indicators(&MembraneState {
                 u_space: space,
                 u: &u,
-                multiplier: None,
-                load: 2.0,
-                obstacle: None,
+                load: &|_| 2.0,
+                bounds: Vec::new(),
             });
             let total = ind.total();
             assert!(total < 1e-12, "{element:?}: η = {total:e}");

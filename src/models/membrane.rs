@@ -5,24 +5,24 @@
 //! dofs) → [`MembraneSystem::assemble`] (K, F, C, g, Riesz weights) → a solver
 //! from `solvers` → [`MembraneSystem::results`] (fields, errors).
 
-use super::estimator::{membrane_indicators, MembraneState};
+use super::estimator::{membrane_indicators, Bound, MembraneState};
 use super::exact::RadialObstacle;
 use super::{
-    check_obstacle_below_fixed_boundary, contact_fields, named_boundary_tags, named_dofs,
-    vertex_field, ExactErrors, ModelSystem,
+    check_obstacle_against_boundary_values, contact_fields, multiplier_field, named_boundary_tags,
+    named_dofs, vertex_field, BoundaryValues, ExactErrors, ModelSystem,
 };
 use crate::assembly::{
     assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
-    mass, DofNumbering,
+    mass, quadrature_points, DofNumbering,
 };
 use crate::error::{Error, Result};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
 use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
-use crate::scene::{ElementPair, ObstacleSpec, Scene};
+use crate::scene::{ElementPair, ExactSpec, Expression, ObstacleSpec, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
-use crate::space::{Element, Space};
+use crate::space::{Element, Space, TriangleGeometry};
 
 pub struct MembraneSystem<'m> {
     pub mesh: &'m Mesh,
@@ -31,11 +31,18 @@ pub struct MembraneSystem<'m> {
     pub lambda_space: Space<'m>,
     pub numbering: DofNumbering,
     /// The source term g of −Δu = g (`load.g`, default 0).
-    pub load: f64,
+    pub load: Expression,
     /// The obstacle u ≥ φ, when the scene has one.
     pub obstacle: Option<ObstacleSpec>,
     /// φ_h: the obstacle's P1 interpolant at the vertices (with an obstacle).
     pub phi: Option<Vec<f64>>,
+    /// ψ₂,h: the upper obstacle's P1 interpolant (two-sided scenes).
+    pub upper: Option<Vec<f64>>,
+    /// The scene's exact solution (`[output.exact]`), when it states one.
+    pub exact: Option<ExactSpec>,
+    /// u at every dof from the boundary values g_D (`mesh.dirichlet_value`);
+    /// only the fixed dofs' entries are used. All 0 without boundary values.
+    pub boundary_values: Vec<f64>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
 }
@@ -67,21 +74,77 @@ impl<'m> MembraneSystem<'m> {
             });
         }
         let numbering = DofNumbering::from_fixed_mask(&fixed);
-        // φ_h, the P1 interpolant of the obstacle at the vertices.
-        let phi = scene
-            .obstacle
+        let load = scene
+            .load
             .as_ref()
-            .map(|obstacle| Space::new(mesh, Element::P1).interpolate(|x| obstacle.value(x)));
-        if let Some(phi) = &phi {
-            // u = 0 on the Dirichlet parts: the obstacle must lie below 0 there.
-            check_obstacle_below_fixed_boundary(
-                mesh,
-                scene,
-                phi,
-                tags.as_deref(),
-                "Dirichlet boundary (u = 0)",
-            )?;
-        }
+            .and_then(|l| l.g.clone())
+            .unwrap_or_else(|| Expression::constant(0.0));
+        // Assembly evaluates g at the quadrature points of `MEMBRANE_RULE`.
+        let rule = TriangleRule::exact_for(MEMBRANE_RULE);
+        let expression_error = |field: &str, reason: String| Error::Scene {
+            file: scene.source.clone(),
+            field: field.into(),
+            reason,
+        };
+        load.check_finite_at("load.g", quadrature_points(mesh, &rule))
+            .map_err(|r| expression_error("load.g", r))?;
+        let p1 = Space::new(mesh, Element::P1);
+        let boundary_values = match &scene.mesh.dirichlet_value {
+            None => vec![0.0; u_space.n_dofs()],
+            Some(g_d) => {
+                let nodes = dof_points(&u_space);
+                g_d.check_finite_at(
+                    "mesh.dirichlet_value",
+                    nodes
+                        .iter()
+                        .zip(&fixed)
+                        .filter(|(_, f)| **f)
+                        .map(|(x, _)| *x),
+                )
+                .map_err(|r| expression_error("mesh.dirichlet_value", r))?;
+                u_space.interpolate(|x| g_d.eval(x))
+            }
+        };
+        // φ_h (and ψ₂,h), the P1 interpolants of the obstacles at the vertices.
+        let interpolant = |field: &str, e: &Expression| -> Result<Vec<f64>> {
+            e.check_finite_at(field, mesh.vertices.iter().copied())
+                .map_err(|r| expression_error(field, r))?;
+            if pair_uses_quadrature(scene.element) {
+                e.check_finite_at(field, quadrature_points(mesh, &rule))
+                    .map_err(|r| expression_error(field, r))?;
+            }
+            Ok(p1.interpolate(|x| e.eval(x)))
+        };
+        let (phi, upper) = match &scene.obstacle {
+            None => (None, None),
+            Some(obstacle) => {
+                let phi = match &obstacle.lower {
+                    Some(lower) => interpolant("obstacle.lower", lower)?,
+                    None => p1.interpolate(|x| obstacle.value(x)),
+                };
+                let upper = match &obstacle.upper {
+                    Some(upper) => Some(interpolant("obstacle.upper", upper)?),
+                    None => None,
+                };
+                if let Some(upper) = &upper {
+                    check_obstacles_ordered(mesh, scene, &phi, upper)?;
+                }
+                // Before solving: ψ₁ ≤ g_D ≤ ψ₂ on the Dirichlet parts.
+                let values = match &scene.mesh.dirichlet_value {
+                    None => BoundaryValues::Zero,
+                    Some(_) => BoundaryValues::AtVertices(u_space.vertex_values(&boundary_values)),
+                };
+                check_obstacle_against_boundary_values(
+                    mesh,
+                    scene,
+                    (&phi, upper.as_deref()),
+                    &values,
+                    tags.as_deref(),
+                    "Dirichlet boundary",
+                )?;
+                (Some(phi), upper)
+            }
+        };
         if scene.output.errors {
             check_exact_solution_applies(mesh, scene, tags.is_none())?;
         }
@@ -95,17 +158,141 @@ impl<'m> MembraneSystem<'m> {
             u_space,
             lambda_space: Space::new(mesh, lambda_element),
             numbering,
-            load: scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0),
+            load,
             obstacle: scene.obstacle.clone(),
             phi,
+            upper,
+            boundary_values,
+            exact: scene.output.exact.clone(),
             simulated,
         })
     }
 
     /// Full coefficient vector of u (Dirichlet values included).
     pub fn u_coefficients(&self, report: &SolveReport) -> Vec<f64> {
-        self.numbering
-            .extend(&report.x, &vec![0.0; self.u_space.n_dofs()])
+        self.numbering.extend(&report.x, &self.boundary_values)
+    }
+
+    /// The constraint rows of one obstacle: g (∫_T ψ_h or ∫ ψ μ_i) and the Riesz weights.
+    fn obstacle_rows(
+        &self,
+        values: &[f64],
+        exact: impl Fn([f64; 2]) -> f64,
+        rule: &TriangleRule,
+    ) -> (Vec<f64>, Vec<f64>) {
+        match self.pair {
+            ElementPair::P1bP0 => {
+                // g_T = ∫_T φ_h with φ_h the P1 interpolant; w_T = |T|.
+                let areas: Vec<f64> = (0..self.mesh.n_triangles())
+                    .map(|t| self.mesh.area(t))
+                    .collect();
+                let g_vec = self
+                    .mesh
+                    .triangles
+                    .iter()
+                    .zip(&areas)
+                    .map(|(tri, a)| a * (values[tri[0]] + values[tri[1]] + values[tri[2]]) / 3.0)
+                    .collect();
+                (g_vec, areas)
+            }
+            ElementPair::P2P1 | ElementPair::P2bPsri => {
+                // g_i = ∫ φ μ_i; w_i = lumped P1 mass (docs/formulation.md §1: the Riesz map
+                // whose projection is a nodal max).
+                let lam = &self.lambda_space;
+                let g_vec = assemble_linear(lam, rule, |v, p| exact(p.x) * v.value);
+                (g_vec, lumped_mass(lam, rule))
+            }
+        }
+    }
+
+    /// Rows of the lower obstacle: λ has this many entries per bound.
+    fn n_rows(&self) -> usize {
+        self.lambda_space.n_dofs()
+    }
+}
+
+/// What errors are measured against: the disk's radial solution or a scene's.
+enum ExactSolution {
+    Radial(RadialObstacle),
+    Given(Box<ExactSpec>),
+}
+
+impl ExactSolution {
+    fn u(&self, x: [f64; 2]) -> f64 {
+        match self {
+            ExactSolution::Radial(e) => e.u(x),
+            ExactSolution::Given(e) => e.u.eval(x),
+        }
+    }
+
+    /// ∇u; a scene's u by central differences (error O(h²) ≈ 1e-10, far
+    /// below the discretisation error measured).
+    fn grad_u(&self, x: [f64; 2]) -> [f64; 2] {
+        match self {
+            ExactSolution::Radial(e) => e.grad_u(x),
+            ExactSolution::Given(e) => {
+                let h = 1e-5 * (1.0 + x[0].abs().max(x[1].abs()));
+                let d = |dx: f64, dy: f64| {
+                    (e.u.eval([x[0] + dx, x[1] + dy]) - e.u.eval([x[0] - dx, x[1] - dy]))
+                        / (2.0 * h)
+                };
+                [d(h, 0.0), d(0.0, h)]
+            }
+        }
+    }
+
+    fn lambda(&self, x: [f64; 2]) -> f64 {
+        match self {
+            ExactSolution::Radial(e) => e.lambda(x),
+            ExactSolution::Given(e) => e.lambda.eval(x),
+        }
+    }
+
+    fn contact_radius(&self) -> f64 {
+        match self {
+            ExactSolution::Radial(e) => e.a,
+            ExactSolution::Given(e) => e.contact_radius,
+        }
+    }
+}
+
+/// The rule of the membrane's assembly: degree 5 (Radon, 7 points) is exact
+/// for every integrand: ∇(P1⊕B3)·∇(P1⊕B3) has degree 4, P2·P1 and φ·P1 degree 3.
+const MEMBRANE_RULE: usize = 5;
+
+/// The P2–P1 pair integrates the obstacle itself at quadrature points
+/// (P1⊕B3–P0 its P1 interpolant).
+fn pair_uses_quadrature(pair: ElementPair) -> bool {
+    pair != ElementPair::P1bP0
+}
+
+/// The point of every dof of a Lagrange space (its node), bubbles at the centroid.
+fn dof_points(space: &Space) -> Vec<[f64; 2]> {
+    let mut points = vec![[0.0; 2]; space.n_dofs()];
+    let nodes = space.element.nodes();
+    for t in 0..space.mesh.n_triangles() {
+        let g = TriangleGeometry::new(space.mesh, t);
+        let (dofs, n) = space.element_dofs(t);
+        for i in 0..n {
+            points[dofs[i]] = g.point(nodes[i]);
+        }
+    }
+    points
+}
+
+/// ψ₁,h ≤ ψ₂,h at every vertex, else no admissible u exists.
+fn check_obstacles_ordered(mesh: &Mesh, scene: &Scene, lower: &[f64], upper: &[f64]) -> Result<()> {
+    let crossing = (0..mesh.n_vertices()).find(|&v| lower[v] > upper[v]);
+    match crossing {
+        Some(v) => Err(Error::Scene {
+            file: scene.source.clone(),
+            field: "obstacle.upper".into(),
+            reason: format!(
+                "infeasible: at the vertex ({:.6}, {:.6}) the lower obstacle {:.6e} lies above the upper one {:.6e} (the two-sided problem needs lower ≤ upper)",
+                mesh.vertices[v][0], mesh.vertices[v][1], lower[v], upper[v]
+            ),
+        }),
+        None => Ok(()),
     }
 }
 
@@ -125,6 +312,10 @@ fn check_exact_solution_applies(
             reason: format!("errors are measured against the exact solution on the unit disk (docs/formulation.md §1), but {reason}"),
         })
     };
+    if scene.output.exact.is_some() {
+        // The scene states its exact solution (checked finite in `ExactSolution::of`).
+        return Ok(());
+    }
     if !dirichlet_everywhere {
         return refuse("mesh.dirichlet names only some boundary parts".into());
     }
@@ -143,7 +334,31 @@ fn check_exact_solution_applies(
     let Some(obstacle) = &scene.obstacle else {
         return refuse("the scene has no obstacle".into());
     };
-    let g = scene.load.as_ref().and_then(|l| l.g).unwrap_or(0.0);
+    if obstacle.shape != crate::scene::ObstacleShape::Paraboloid {
+        return refuse("the obstacle is not the paraboloid".into());
+    }
+    if scene
+        .mesh
+        .dirichlet_value
+        .as_ref()
+        .and_then(Expression::as_constant)
+        .is_some_and(|v| v != 0.0)
+        || scene
+            .mesh
+            .dirichlet_value
+            .as_ref()
+            .is_some_and(|v| v.as_constant().is_none())
+    {
+        return refuse("mesh.dirichlet_value is not 0".into());
+    }
+    let Some(g) = scene
+        .load
+        .as_ref()
+        .and_then(|l| l.g.as_ref())
+        .map_or(Some(0.0), Expression::as_constant)
+    else {
+        return refuse("load.g is an expression, not a number".into());
+    };
     let curvature = obstacle.curvature.unwrap_or(0.0);
     if RadialObstacle::new(g, obstacle.level(), curvature).is_none() {
         return refuse(format!(
@@ -158,15 +373,17 @@ impl ModelSystem for MembraneSystem<'_> {
     /// The algebraic problem: stiffness K, load F, and (only when the scene has
     /// an obstacle) the constraint C u ≥ g with its Riesz weights.
     fn assemble(&self) -> Result<ContactProblem> {
-        // Degree 5 (Radon, 7 points) is exact for every integrand below:
-        // ∇(P1⊕B3)·∇(P1⊕B3) has degree 4, P2·P1 and φ·P1 degree 3.
-        let rule = TriangleRule::exact_for(5);
-        let g = self.load;
+        let rule = TriangleRule::exact_for(MEMBRANE_RULE);
+        let g = &self.load;
         let u = &self.u_space;
         let k_full = assemble_bilinear(u, u, &rule, laplace);
-        let fixed_values = vec![0.0; u.n_dofs()];
-        let (k, shift) = eliminate(k_full, &self.numbering, &self.numbering, &fixed_values);
-        let f_full = assemble_linear(u, &rule, |v, _| g * v.value);
+        // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
+        let fixed_values = &self.boundary_values;
+        let (k, shift) = eliminate(k_full, &self.numbering, &self.numbering, fixed_values);
+        let f_full = match g.as_constant() {
+            Some(g) => assemble_linear(u, &rule, |v, _| g * v.value),
+            None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
+        };
         let rhs: Vec<f64> = self
             .numbering
             .restrict(&f_full)
@@ -180,33 +397,25 @@ impl ModelSystem for MembraneSystem<'_> {
                 let lam = &self.lambda_space;
                 let c_full = assemble_bilinear(lam, u, &rule, mass);
                 let all_rows = DofNumbering::all_free(lam.n_dofs());
-                let (c, c_shift) = eliminate(c_full, &all_rows, &self.numbering, &fixed_values);
-                let (mut g_vec, weights) = match self.pair {
-                    ElementPair::P1bP0 => {
-                        // g_T = ∫_T φ_h with φ_h the P1 interpolant; w_T = |T|.
-                        let phi = self.phi.as_ref().expect("set up with the obstacle");
-                        let areas: Vec<f64> = (0..self.mesh.n_triangles())
-                            .map(|t| self.mesh.area(t))
-                            .collect();
-                        let g_vec = self
-                            .mesh
-                            .triangles
-                            .iter()
-                            .zip(&areas)
-                            .map(|(tri, a)| a * (phi[tri[0]] + phi[tri[1]] + phi[tri[2]]) / 3.0)
-                            .collect();
-                        (g_vec, areas)
-                    }
-                    ElementPair::P2P1 | ElementPair::P2bPsri => {
-                        // g_i = ∫ φ μ_i; w_i = lumped P1 mass (docs/formulation.md §1: the Riesz map
-                        // whose projection is a nodal max).
-                        let g_vec =
-                            assemble_linear(lam, &rule, |v, p| obstacle.value(p.x) * v.value);
-                        (g_vec, lumped_mass(lam, &rule))
-                    }
-                };
+                let (mut c, c_shift) = eliminate(c_full, &all_rows, &self.numbering, fixed_values);
+                let phi = self.phi.as_ref().expect("set up with the obstacle");
+                let (mut g_vec, mut weights) =
+                    self.obstacle_rows(phi, |x| obstacle.value(x), &rule);
                 // C_free x + C_fixed u_fixed ≥ g.
                 g_vec.iter_mut().zip(&c_shift).for_each(|(gi, s)| *gi += s);
+                if let (Some(upper), Some(upper_values)) = (&obstacle.upper, &self.upper) {
+                    // u ≤ ψ₂ as −C x ≥ −g₂: the solvers see one stacked
+                    // constraint [C; −C] x ≥ [g₁; −g₂], each bound with its weights.
+                    let (g_upper, w_upper) =
+                        self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
+                    let m = self.n_rows();
+                    let lower_rows = c.entries.clone();
+                    c.nrows = 2 * m;
+                    c.entries
+                        .extend(lower_rows.into_iter().map(|(r, col, v)| (r + m, col, -v)));
+                    g_vec.extend(g_upper.iter().zip(&c_shift).map(|(g, s)| -(g + s)));
+                    weights.extend(w_upper);
+                }
                 Some(Constraint {
                     matrix: c.into_sparse(),
                     obstacle: g_vec,
@@ -223,14 +432,21 @@ impl ModelSystem for MembraneSystem<'_> {
         })
     }
 
-    /// Errors against the exact radial solution, when the scene is that case.
+    /// Errors against the exact solution: the scene's `[output.exact]`, or
+    /// the radial one when the scene is the disk case.
     fn exact_errors(&self, problem: &ContactProblem, report: &SolveReport) -> Option<ExactErrors> {
         let (obstacle, constraint) = (self.obstacle.as_ref()?, problem.constraint.as_ref()?);
-        let exact = RadialObstacle::new(
-            self.load,
-            obstacle.level(),
-            obstacle.curvature.unwrap_or(0.0),
-        )?;
+        let exact = match &self.exact {
+            Some(given) => ExactSolution::Given(Box::new(given.clone())),
+            None if obstacle.shape == crate::scene::ObstacleShape::Paraboloid => {
+                ExactSolution::Radial(RadialObstacle::new(
+                    self.load.as_constant()?,
+                    obstacle.level(),
+                    obstacle.curvature.unwrap_or(0.0),
+                )?)
+            }
+            None => return None,
+        };
         let u = self.u_coefficients(report);
         // The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
         // a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
@@ -257,25 +473,45 @@ impl ModelSystem for MembraneSystem<'_> {
             h1: h1.iter().sum::<f64>().sqrt(),
             lambda_l2: lam.iter().sum::<f64>().sqrt(),
             contact_radius: (area / std::f64::consts::PI).sqrt(),
-            exact_contact_radius: exact.a,
+            exact_contact_radius: exact.contact_radius(),
         })
     }
 
     /// The residual estimator of docs/formulation.md §8 (`models::estimator`).
     fn estimator(&self, _problem: &ContactProblem, report: &SolveReport) -> Option<Vec<f64>> {
         let u = self.u_coefficients(report);
-        let phi = self
+        let load = |x: [f64; 2]| self.load.eval(x);
+        let lower = self
             .obstacle
             .as_ref()
             .map(|o| move |x: [f64; 2]| o.value(x));
+        let upper = self
+            .obstacle
+            .as_ref()
+            .and_then(|o| o.upper.as_ref())
+            .map(|e| move |x: [f64; 2]| e.eval(x));
+        // λ holds the lower bound's rows, then the upper bound's (two-sided).
+        let m = self.n_rows();
+        let mut bounds = Vec::new();
+        if let Some(lower) = &lower {
+            bounds.push(Bound {
+                obstacle: lower,
+                multiplier: (self.lambda_space, &report.lambda[..m]),
+                sign: 1.0,
+            });
+        }
+        if let Some(upper) = &upper {
+            bounds.push(Bound {
+                obstacle: upper,
+                multiplier: (self.lambda_space, &report.lambda[m..]),
+                sign: -1.0,
+            });
+        }
         let state = MembraneState {
             u_space: self.u_space,
             u: &u,
-            multiplier: phi
-                .as_ref()
-                .map(|_| (self.lambda_space, report.lambda.as_slice())),
-            load: self.load,
-            obstacle: phi.as_ref().map(|f| f as &dyn Fn([f64; 2]) -> f64),
+            load: &load,
+            bounds,
         };
         Some(membrane_indicators(&state).eta())
     }
@@ -296,12 +532,41 @@ impl ModelSystem for MembraneSystem<'_> {
         ));
         if let (Some(phi), Some(c)) = (&self.phi, &problem.constraint) {
             data.fields.push(vertex_field("phi", phi.clone()));
-            contact_fields(
-                &mut data,
-                report.lambda.clone(),
-                c.mean_gaps(&report.x),
-                self.lambda_space.element,
-            );
+            let mut gaps = c.mean_gaps(&report.x);
+            match &self.upper {
+                None => contact_fields(
+                    &mut data,
+                    report.lambda.clone(),
+                    gaps,
+                    self.lambda_space.element,
+                ),
+                Some(upper) => {
+                    // Two-sided: λ = λ₁ − λ₂ (net), and each bound's own
+                    // multiplier, mean gap and contact indicator (§5).
+                    let m = self.n_rows();
+                    let (lower_lambda, upper_lambda) = report.lambda.split_at(m);
+                    let net = lower_lambda
+                        .iter()
+                        .zip(upper_lambda)
+                        .map(|(a, b)| a - b)
+                        .collect();
+                    let upper_gaps = gaps.split_off(m);
+                    contact_fields(&mut data, net, gaps, self.lambda_space.element);
+                    data.fields.push(vertex_field("phi_upper", upper.clone()));
+                    for (name, values) in [
+                        ("lambda_lower", lower_lambda.to_vec()),
+                        ("lambda_upper", upper_lambda.to_vec()),
+                        ("gap_upper_mean", upper_gaps),
+                        (
+                            "contact_upper",
+                            upper_lambda.iter().map(|&l| f64::from(l > 0.0)).collect(),
+                        ),
+                    ] {
+                        data.fields
+                            .push(multiplier_field(name, values, self.lambda_space.element));
+                    }
+                }
+            }
         }
         data.root_attrs
             .push(("model".into(), AttrValue::Str("membrane".into())));

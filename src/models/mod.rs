@@ -214,32 +214,90 @@ pub fn named_boundary_tags(
         .map(Some)
 }
 
-/// Where the boundary parts `tags` (all of the boundary if None) hold the
-/// solution at 0, the obstacle must not lie above 0: the largest Φ_h > 0 at
-/// one of their vertices makes the problem infeasible (no admissible u
-/// exists). Detected before assembling; the error names `where_fixed`.
-pub fn check_obstacle_below_fixed_boundary(
+/// The values a solution takes on its fixed boundary parts.
+pub enum BoundaryValues {
+    /// u = 0 (the shell's clamped parts, the membrane without `mesh.dirichlet_value`).
+    Zero,
+    /// u = g_D, its values at the vertices.
+    AtVertices(Vec<f64>),
+}
+
+/// Feasibility before assembling: where the boundary parts `tags` (all of
+/// the boundary if None) fix the solution to g_D, the obstacles must admit
+/// it, ψ₁,h ≤ g_D (≤ ψ₂,h) at each of their vertices; else no admissible u
+/// exists. The error names `where_fixed`, the worst vertex and the values.
+pub fn check_obstacle_against_boundary_values(
     mesh: &Mesh,
     scene: &Scene,
-    phi: &[f64],
+    (lower, upper): (&[f64], Option<&[f64]>),
+    values: &BoundaryValues,
     tags: Option<&[i32]>,
     where_fixed: &str,
 ) -> Result<()> {
     let mask = mesh.boundary_vertex_mask(tags);
-    let scale = phi.iter().fold(0.0f64, |m, p| m.max(p.abs())).max(1.0);
-    let worst = (0..mesh.n_vertices())
-        .filter(|&v| mask[v])
-        .max_by(|&a, &b| phi[a].total_cmp(&phi[b]));
-    match worst {
-        Some(v) if phi[v] > 1e-12 * scale => Err(Error::Scene {
+    let value = |v: usize| match values {
+        BoundaryValues::Zero => 0.0,
+        BoundaryValues::AtVertices(g) => g[v],
+    };
+    let scale = lower
+        .iter()
+        .chain(upper.unwrap_or(&[]))
+        .fold(0.0f64, |m, p| m.max(p.abs()))
+        .max(1.0);
+    let fixed = || (0..mesh.n_vertices()).filter(|&v| mask[v]);
+    let infeasible = |v: usize, what: String| {
+        Err(Error::Scene {
             file: scene.source.clone(),
             field: "obstacle".into(),
             reason: format!(
-                "infeasible: the {where_fixed} at ({:.6}, {:.6}) lies {:.6e} below the obstacle (Φ_h > 0 there), so no admissible displacement exists (the obstacle must lie below the boundary values)",
-                mesh.vertices[v][0], mesh.vertices[v][1], phi[v]
+                "infeasible: the {where_fixed} at ({:.6}, {:.6}) {what}, so no admissible displacement exists (the obstacle must admit the boundary values)",
+                mesh.vertices[v][0], mesh.vertices[v][1]
             ),
-        }),
-        _ => Ok(()),
+        })
+    };
+    let worst_below =
+        fixed().max_by(|&a, &b| (lower[a] - value(a)).total_cmp(&(lower[b] - value(b))));
+    if let Some(v) = worst_below.filter(|&v| lower[v] - value(v) > 1e-12 * scale) {
+        return infeasible(
+            v,
+            format!(
+                "lies {:.6e} below the obstacle (Φ_h = {:.6e} > {} there)",
+                lower[v] - value(v),
+                lower[v],
+                value(v)
+            ),
+        );
+    }
+    if let Some(upper) = upper {
+        let worst_above =
+            fixed().max_by(|&a, &b| (value(a) - upper[a]).total_cmp(&(value(b) - upper[b])));
+        if let Some(v) = worst_above.filter(|&v| value(v) - upper[v] > 1e-12 * scale) {
+            return infeasible(
+                v,
+                format!(
+                    "lies {:.6e} above the upper obstacle ({} > ψ₂,h = {:.6e} there)",
+                    value(v) - upper[v],
+                    value(v),
+                    upper[v]
+                ),
+            );
+        }
+    }
+    Ok(())
+}
+
+/// A scalar field where the multipliers live: per triangle (P0) or per vertex (P1).
+pub fn multiplier_field(name: &str, values: Vec<f64>, multipliers: Element) -> Field {
+    let location = if multipliers == Element::P0 {
+        Location::Cell
+    } else {
+        Location::Vertex
+    };
+    Field {
+        name: name.into(),
+        values,
+        components: 1,
+        location,
     }
 }
 
@@ -262,11 +320,6 @@ pub fn contact_fields(
     gap: Vec<f64>,
     multipliers: Element,
 ) {
-    let location = if multipliers == Element::P0 {
-        Location::Cell
-    } else {
-        Location::Vertex
-    };
     let contact = lambda
         .iter()
         .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
@@ -276,12 +329,8 @@ pub fn contact_fields(
         ("gap_mean", gap),
         ("contact", contact),
     ] {
-        data.fields.push(Field {
-            name: name.into(),
-            values,
-            components: 1,
-            location,
-        });
+        data.fields
+            .push(multiplier_field(name, values, multipliers));
     }
     data.dofs.push(("lambda".into(), lambda));
     data.dof_spaces

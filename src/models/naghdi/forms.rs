@@ -32,6 +32,7 @@ use crate::assembly::{eliminate, quad_points, DofNumbering, Triplets};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
 use crate::quadrature::{SegmentRule, TriangleRule};
+use crate::scene::Expression;
 use crate::solvers::{Constraint, ContactProblem};
 use crate::space::{Element, Space, TriangleGeometry};
 use nalgebra::{Matrix2, Vector3};
@@ -479,7 +480,7 @@ pub fn element_matrices(
     chart: &Chart,
     material: &Material,
     rho: f64,
-    load: [f64; 3],
+    load: &[Expression; 3],
 ) -> ElementMatrices {
     let g = TriangleGeometry::new(mesh, t);
     let u_fields: Vec<&ShellField> = layout.u_fields().collect();
@@ -509,7 +510,7 @@ pub fn element_matrices(
                     e[i] = field_strains(&p, field.role, basis.values[k], grad);
                     if pass.full {
                         if let FieldRole::Displacement(c) = field.role {
-                            el.load[i] += q.weight * load[c] * basis.values[k] * p.sqrt_a;
+                            el.load[i] += q.weight * load[c].eval(q.x) * basis.values[k] * p.sqrt_a;
                         }
                     }
                     i += 1;
@@ -581,7 +582,7 @@ pub fn assemble_shell_layout(
     chart: &Chart,
     material: &Material,
     rho: f64,
-    load: [f64; 3],
+    load: &[Expression; 3],
 ) -> (Triplets, Vec<f64>) {
     let n = layout.n_total();
     let mut a = Triplets::new(n, n);
@@ -619,7 +620,8 @@ pub fn assemble_shell_full(
     rho: f64,
     load: [f64; 3],
 ) -> (Triplets, Vec<f64>) {
-    assemble_shell_layout(mesh, &ShellLayout::new(mesh), chart, material, rho, load)
+    let load = load.map(Expression::constant);
+    assemble_shell_layout(mesh, &ShellLayout::new(mesh), chart, material, rho, &load)
 }
 
 /// The shell without contact: the saddle matrix [[K_ρ, Bᵀ], [B, 0]] over the
@@ -892,7 +894,7 @@ pub fn nodal_plane_constraint(
     layout: &ShellLayout,
     chart: &Chart,
     material: &Material,
-    level: f64,
+    height: &Expression,
     numbering: &DofNumbering,
 ) -> Constraint {
     let rule = TriangleRule::exact_for(5);
@@ -923,7 +925,7 @@ pub fn nodal_plane_constraint(
                     }
                 }
             }
-            let phi = obstacle_function(&p, material.thickness) + level;
+            let phi = obstacle_function(&p, material.thickness) + height.eval([p.phi.x, p.phi.y]);
             for i in 0..3 {
                 obstacle[tri[i]] += q.weight * phi * q.lambda[i];
                 weights[tri[i]] += q.weight * q.lambda[i];
@@ -1064,7 +1066,7 @@ mod tests {
                 &hypar(),
                 &material(),
                 1e3,
-                [0.0, 0.0, -0.25],
+                &[0.0, 0.0, -0.25].map(Expression::constant),
             );
             let n = el.n_u;
             let scale = el.stiffness.iter().fold(0.0f64, |m, v| m.max(v.abs()));

@@ -18,17 +18,19 @@ use super::forms::{
     scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
 };
 use super::geometry::{obstacle_function, Chart, Material};
-use crate::assembly::{quad_points, DofNumbering};
+use crate::assembly::{quad_points, quadrature_points, DofNumbering};
 use crate::error::{Error, Result};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::{
-    check_obstacle_below_fixed_boundary, contact_fields, named_boundary_tags, named_dofs,
-    plot_result_field, vertex_field, FigureData, ModelSystem,
+    check_obstacle_against_boundary_values, contact_fields, named_boundary_tags, named_dofs,
+    plot_result_field, vertex_field, BoundaryValues, FigureData, ModelSystem,
 };
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::plot;
 use crate::quadrature::TriangleRule;
-use crate::scene::{BoundaryCondition, BoundarySpec, ElementPair, PlotKind, Scene, ShellSpec};
+use crate::scene::{
+    BoundaryCondition, BoundarySpec, ElementPair, Expression, PlotKind, Scene, ShellSpec,
+};
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
@@ -48,10 +50,10 @@ pub struct NaghdiSystem<'m> {
     /// module documentation).
     pub plate_reduction: bool,
     /// The body force f and the edge loads (tag, N, M), resolved once.
-    body_force: [f64; 3],
+    body_force: [Expression; 3],
     edge_loads: Vec<(i32, [f64; 3], [f64; 3])>,
-    /// The rigid plane's level (obstacle scenes).
-    pub level: Option<f64>,
+    /// The rigid body's height h(x, y): z < h is the obstacle (a number for the plane).
+    pub height: Option<Expression>,
     /// Φ at the vertices, with the plane's level added (obstacle scenes).
     pub phi: Option<Vec<f64>>,
     /// Vertices where Φ > 0 (the unloaded shell is below the plane).
@@ -287,7 +289,22 @@ impl<'m> NaghdiSystem<'m> {
             .map(|(t, _)| t.clone())
             .collect();
         let load = scene.load.as_ref();
-        let body_force = load.and_then(|l| l.f).unwrap_or([0.0; 3]);
+        let body_force = load
+            .and_then(|l| l.f.clone())
+            .unwrap_or_else(|| std::array::from_fn(|_| Expression::constant(0.0)));
+        // Where assembly evaluates the body force and the P1 constraint the
+        // obstacle: Radon's 7 points (the PSRI passes' lower-degree rules are
+        // not checked separately).
+        let rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
+        for (c, f) in body_force.iter().enumerate() {
+            let key = format!("load.f[{c}]");
+            f.check_finite_at(&key, rule_points.iter().copied())
+                .map_err(|reason| Error::Scene {
+                    file: scene.source.clone(),
+                    field: key.clone(),
+                    reason,
+                })?;
+        }
         let mut edge_loads = Vec::new();
         for edge in load.map_or(&[][..], |l| &l.edge[..]) {
             let tags = named_boundary_tags(
@@ -309,7 +326,7 @@ impl<'m> NaghdiSystem<'m> {
         {
             simulated.push("boundary-conditions".into());
         }
-        if body_force.iter().any(|v| *v != 0.0) {
+        if body_force.iter().any(|v| v.as_constant() != Some(0.0)) {
             simulated.push("body-force".into());
         }
         if !edge_loads.is_empty() {
@@ -320,27 +337,47 @@ impl<'m> NaghdiSystem<'m> {
             (_, true) => "tangency-eliminated".into(),
             (_, false) => "tangency-multiplier".into(),
         });
-        let (level, phi, phi_positive_vertices) = match &scene.obstacle {
+        let (height, phi, phi_positive_vertices) = match &scene.obstacle {
             None => (None, None, 0),
             Some(obstacle) => {
                 simulated.push("contact".into());
-                let level = obstacle.level();
+                let height = obstacle
+                    .height
+                    .clone()
+                    .unwrap_or_else(|| Expression::constant(0.0));
+                // h is read below the midsurface point φ(x) (docs/formulation.md §2.1).
+                let below = |x: [f64; 2]| {
+                    let p = chart.at(x).phi;
+                    [p.x, p.y]
+                };
+                height
+                    .check_finite_at(
+                        "obstacle.height",
+                        mesh.vertices.iter().chain(&rule_points).map(|&x| below(x)),
+                    )
+                    .map_err(|reason| Error::Scene {
+                        file: scene.source.clone(),
+                        field: "obstacle.height".into(),
+                        reason,
+                    })?;
                 let phi: Vec<f64> = obstacle_at_vertices(mesh, &chart, &material)
                     .into_iter()
-                    .map(|p| p + level)
+                    .zip(&mesh.vertices)
+                    .map(|(p, &x)| p + height.eval(below(x)))
                     .collect();
                 for tags in &clamped_tags {
                     // A clamped point has u = r = 0: its constraint value is 0.
-                    check_obstacle_below_fixed_boundary(
+                    check_obstacle_against_boundary_values(
                         mesh,
                         scene,
-                        &phi,
+                        (&phi, None),
+                        &BoundaryValues::Zero,
                         tags.as_deref(),
                         "clamped boundary",
                     )?;
                 }
                 let positive = phi.iter().filter(|p| **p > 0.0).count();
-                (Some(level), Some(phi), positive)
+                (Some(height), Some(phi), positive)
             }
         };
         Ok(NaghdiSystem {
@@ -356,7 +393,7 @@ impl<'m> NaghdiSystem<'m> {
             plate_reduction,
             body_force,
             edge_loads,
-            level,
+            height,
             phi,
             phi_positive_vertices,
             tangency_scale: Cell::new(1.0),
@@ -444,7 +481,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             &self.chart,
             &self.material,
             self.rho,
-            self.body_force,
+            &self.body_force,
         );
         for &(tag, traction, moment) in &self.edge_loads {
             add_edge_load(
@@ -464,7 +501,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             scale_tangency_multiplier(&mut problem, sigma);
             self.tangency_scale.set(sigma);
         }
-        if let (Some(phi), Some(level)) = (&self.phi, self.level) {
+        if let (Some(phi), Some(height)) = (&self.phi, &self.height) {
             problem.constraint = Some(match self.layout.kind {
                 ShellElementKind::P1bP0 => {
                     plane_constraint(self.mesh, &self.material, phi, &self.numbering)
@@ -474,7 +511,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                     &self.layout,
                     &self.chart,
                     &self.material,
-                    level,
+                    height,
                     &self.numbering,
                 ),
             });
@@ -486,7 +523,7 @@ impl ModelSystem for NaghdiSystem<'_> {
     /// Table 5.5), when the origin lies in ω and the scene has an obstacle
     /// (Φ_h: the P1 interpolant with P0 multipliers, Φ itself with P1).
     fn probes(&self) -> Vec<Probe> {
-        let (Some(phi), Some(level)) = (&self.phi, self.level) else {
+        let (Some(phi), Some(height)) = (&self.phi, &self.height) else {
             return Vec::new();
         };
         let Some((t, l)) = PointLocator::new(self.mesh).locate([0.0, 0.0]) else {
@@ -507,7 +544,9 @@ impl ModelSystem for NaghdiSystem<'_> {
         let phi0: f64 = match self.layout.kind {
             ShellElementKind::P1bP0 => (0..3).map(|k| l[k] * phi[tri[k]]).sum(),
             ShellElementKind::P2bPsri => {
-                obstacle_function(&self.chart.at([0.0, 0.0]), self.material.thickness) + level
+                let origin = self.chart.at([0.0, 0.0]);
+                obstacle_function(&origin, self.material.thickness)
+                    + height.eval([origin.phi.x, origin.phi.y])
             }
         };
         vec![Probe {

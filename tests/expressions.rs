@@ -1,0 +1,189 @@
+//! Issue 17: expressions in scenes (bad ones named by their key), boundary
+//! values, the feasibility check against them, and the two-sided obstacle
+//! solved alike by every solver.
+
+mod common;
+
+use common::{assert_one_error, dofs, field, solve_scene, solver_attr};
+use obstacle_fem::output::{read_result, AttrValue};
+
+const TWO_SIDED: &str = "peers/two-sided";
+
+fn tmp() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+/// A bad expression: one error naming the key, the position and the reason;
+/// no result file.
+#[test]
+fn bad_expressions_name_their_key() {
+    let dir = tmp();
+    let out = dir.path().join("r.h5");
+    let cases: [(&[&str], &[&str]); 6] = [
+        (
+            &["load.g=\"2*(x + \""],
+            &["load.g", "character 6", "operand after"],
+        ),
+        (
+            &["load.g=\"-4 + foo(x)\""],
+            &["load.g", "character 6", "unknown function `foo`"],
+        ),
+        (
+            &["load.g=\"1/(x - x)\""],
+            &["load.g", "is inf at the point"],
+        ),
+        (
+            &["obstacle.lower=\"ln(y + 0.5)\""],
+            &[
+                "obstacle.lower",
+                "NaN",
+                "at the point",
+                "everywhere on the mesh",
+            ],
+        ),
+        (
+            &["mesh.dirichlet_value=\"1/(x*x + y*y - 1)\""],
+            &["mesh.dirichlet_value", "inf"],
+        ),
+        (
+            &["obstacle.upper=\"x^\""],
+            &["obstacle.upper", "character 2", "operand after"],
+        ),
+    ];
+    for (sets, expected) in cases {
+        let o = solve_scene(TWO_SIDED, &out, &[sets[0], "mesh.n=4"]);
+        assert_one_error(&o, expected, sets[0]);
+        assert!(!out.exists(), "{}: no result after an error", sets[0]);
+    }
+}
+
+/// ψ₁ > ψ₂ somewhere, and boundary values outside [ψ₁, ψ₂]: refused before
+/// solving, naming the point.
+#[test]
+fn infeasible_obstacles_are_refused_before_solving() {
+    let dir = tmp();
+    let out = dir.path().join("r.h5");
+    let o = solve_scene(TWO_SIDED, &out, &["mesh.n=4", "obstacle.upper=\"-0.2\""]);
+    assert_one_error(
+        &o,
+        &["obstacle.upper", "infeasible", "lies above the upper"],
+        "crossed",
+    );
+    // g_D = 0.3 on the circle lies above ψ₂ = 0.25 there.
+    let o = solve_scene(TWO_SIDED, &out, &["mesh.n=4", "mesh.dirichlet_value=0.3"]);
+    assert_one_error(
+        &o,
+        &[
+            "field `obstacle`",
+            "infeasible",
+            "Dirichlet boundary",
+            "above the upper obstacle",
+        ],
+        "g_D above ψ₂",
+    );
+    let o = solve_scene(
+        TWO_SIDED,
+        &out,
+        &["mesh.n=4", "mesh.dirichlet_value=\"-0.3 + 0*x\""],
+    );
+    assert_one_error(&o, &["infeasible", "below the obstacle"], "g_D below ψ₁");
+    assert!(!out.exists());
+}
+
+/// Nonzero boundary values are lifted: without an obstacle u = g_D = x + 2y
+/// (harmonic) is reproduced to round-off by P2, and the result stores it.
+#[test]
+fn boundary_values_are_lifted() {
+    let dir = tmp();
+    let out = dir.path().join("r.h5");
+    let o = solve_scene(
+        TWO_SIDED,
+        &out,
+        &[
+            "mesh.n=6",
+            "element=p2-p1",
+            "load.g=0",
+            "mesh.dirichlet_value=\"x + 2*y\"",
+            "obstacle.lower=\"-5\"",
+            "obstacle.upper=\"5\"",
+        ],
+    );
+    assert!(o.status.success(), "{}", common::text(&o));
+    let r = read_result(&out).unwrap();
+    let u = field(&r, "u");
+    let err = r
+        .vertices
+        .iter()
+        .zip(u)
+        .map(|(p, u)| (u - (p[0] + 2.0 * p[1])).abs())
+        .fold(0.0f64, f64::max);
+    assert!(err < 1e-10, "max |u − (x + 2y)| = {err:e}");
+}
+
+/// Every solver solves the two-sided problem to its tolerance, with both
+/// bounds active, and all find the active-set method's solution.
+#[test]
+fn two_sided_in_every_solver() {
+    let dir = tmp();
+    let methods: [&[&str]; 4] = [
+        &["solver.method=active-set"],
+        &[
+            "solver.method=uzawa",
+            "solver.alpha=auto",
+            "solver.step_form=mean",
+        ],
+        &["solver.method=uzawa-split"],
+        &["solver.method=dual-accelerated"],
+    ];
+    let mut reference: Option<Vec<f64>> = None;
+    for sets in methods {
+        let out = dir.path().join(format!("{}.h5", &sets[0][14..]));
+        let mut all = vec!["mesh.n=8", "solver.tol=1e-8"];
+        all.extend_from_slice(sets);
+        let o = solve_scene(TWO_SIDED, &out, &all);
+        assert!(o.status.success(), "{sets:?}: {}", common::text(&o));
+        let r = read_result(&out).unwrap();
+        assert!(
+            matches!(solver_attr(&r, "converged"), AttrValue::Bool(true)),
+            "{sets:?}"
+        );
+        let AttrValue::F64(kkt) = solver_attr(&r, "kkt") else {
+            panic!("kkt")
+        };
+        assert!(*kkt <= 1e-8, "{sets:?}: KKT {kkt:e}");
+        let (lower, upper) = (field(&r, "lambda_lower"), field(&r, "lambda_upper"));
+        let net = field(&r, "lambda");
+        assert!(
+            lower.iter().filter(|&&l| l > 0.0).count() > 10,
+            "{sets:?}: lower bound active"
+        );
+        assert!(
+            upper.iter().filter(|&&l| l > 0.0).count() > 10,
+            "{sets:?}: upper bound active"
+        );
+        // A triangle cannot touch both bounds: net = lower − upper.
+        for ((n, l), u) in net.iter().zip(lower).zip(upper) {
+            assert!((n - (l - u)).abs() < 1e-12 && l * u == 0.0, "{sets:?}");
+        }
+        // Both mean gaps ≥ 0 (up to the tolerance, scaled by the obstacle's size).
+        for name in ["gap_mean", "gap_upper_mean"] {
+            let worst = field(&r, name)
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min);
+            assert!(worst > -1e-6, "{sets:?}: {name} min {worst:e}");
+        }
+        let u = dofs(&r, "u").to_vec();
+        match &reference {
+            None => reference = Some(u),
+            Some(reference) => {
+                let diff = u
+                    .iter()
+                    .zip(reference)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(diff < 1e-6, "{sets:?}: max |u − u_active_set| = {diff:e}");
+            }
+        }
+    }
+}
