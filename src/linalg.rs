@@ -16,6 +16,11 @@ use faer::sparse::{FaerError, SparseColMat};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
+mod condensed;
+
+pub use condensed::InteriorGroups;
+use condensed::{CondensationPlan, LocalFactors};
+
 /// What the matrix is known to be; picks the factorisation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MatrixKind {
@@ -61,6 +66,35 @@ pub enum Factorization {
     Cholesky(Llt<usize, f64>),
     Ldlt(Box<RegularizedLdlt>),
     Lu(Box<Lu<usize, f64>>),
+    /// Interior groups eliminated, the Schur complement factorised
+    /// ([`InteriorGroups`], `linalg/condensed.rs`).
+    Condensed(Box<CondensedFactorization>),
+}
+
+/// A factorisation by static condensation: the local eliminations of the
+/// interior groups and the factorisation of the Schur complement S.
+pub struct CondensedFactorization {
+    plan: Arc<CondensationPlan>,
+    local: LocalFactors,
+    schur: Factorization,
+}
+
+impl CondensedFactorization {
+    /// Solves A x = b (or Aᵀ x = b) in place: condense b, solve S, recover.
+    fn solve_in_place(&self, b: &mut [f64], transpose: bool) {
+        let mut x_r = self.plan.condense_rhs(&self.local, b, transpose);
+        if transpose {
+            self.schur.solve_transpose_in_place(&mut x_r);
+        } else {
+            self.schur.solve_in_place(&mut x_r);
+        }
+        self.plan.recover(&self.local, &x_r, b, transpose);
+    }
+
+    /// The number of unknowns of the factorised Schur complement.
+    pub fn n_schur(&self) -> usize {
+        self.plan.n_schur()
+    }
 }
 
 impl Factorization {
@@ -81,7 +115,19 @@ pub fn factorize_checked(
     solves: Solves,
     what: &str,
 ) -> Result<Factorization> {
-    let (f, _) = ReusableFactorization::analyze(a, kind, solves, what)?.factorize(a, what)?;
+    factorize_checked_with(a, kind, solves, None, what)
+}
+
+/// [`factorize_checked`], condensing the `interior` groups first when given.
+pub fn factorize_checked_with(
+    a: &SparseColMat<usize, f64>,
+    kind: MatrixKind,
+    solves: Solves,
+    interior: Option<&InteriorGroups>,
+    what: &str,
+) -> Result<Factorization> {
+    let (f, _) =
+        ReusableFactorization::analyze_with(a, kind, solves, interior, what)?.factorize(a, what)?;
     Ok(f)
 }
 
@@ -116,6 +162,13 @@ fn check_solve(
     }
     let mut x = b.to_vec();
     f.solve_in_place(&mut x);
+    let rel = judge_solve(a, &x, b, what)?;
+    Ok((x, rel))
+}
+
+/// ‖Ax − b‖∞/‖b‖∞ of a solution x of A x = b (b ≠ 0); an error when x is
+/// not finite or the residual is above 1e-6.
+fn judge_solve(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64], what: &str) -> Result<f64> {
     if x.iter().any(|v| !v.is_finite()) {
         return Err(Error::numerical(
             what,
@@ -123,7 +176,7 @@ fn check_solve(
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let rel = norm_inf(&residual(a, &x, b)) / norm_inf(b);
+    let rel = norm_inf(&residual(a, x, b)) / norm_inf(b);
     if rel > 1e-6 {
         return Err(Error::numerical(
             what,
@@ -133,7 +186,7 @@ fn check_solve(
             ),
         ));
     }
-    Ok((x, rel))
+    Ok(rel)
 }
 
 /// The symbolic LU analysis of `a`'s pattern.
@@ -200,11 +253,21 @@ enum SymbolicAnalysis {
 /// reused by every numeric refactorisation of a matrix with that exact
 /// pattern (explicit zeros included). Counts both, so callers can report
 /// (and tests check) that only numeric refactorisations follow the first.
+/// With interior groups ([`ReusableFactorization::analyze_with`]) the
+/// factorised matrix is the Schur complement S, whose pattern is fixed by
+/// the pattern of A: the counts are those of S.
 pub struct ReusableFactorization {
-    symbolic: SymbolicAnalysis,
     nrows: usize,
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
+    /// The factoriser of A, or of S when condensed.
+    direct: DirectFactorizer,
+    condensation: Option<Arc<CondensationPlan>>,
+}
+
+/// The symbolic analysis of one matrix pattern and its counts.
+struct DirectFactorizer {
+    symbolic: SymbolicAnalysis,
     symbolic_analyses: usize,
     numeric_factorizations: usize,
 }
@@ -217,6 +280,20 @@ impl ReusableFactorization {
         solves: Solves,
         what: &str,
     ) -> Result<Self> {
+        Self::analyze_with(a, kind, solves, None, what)
+    }
+
+    /// [`ReusableFactorization::analyze`] with the `interior` groups
+    /// condensed (checked against `a`'s pattern: a group coupling with
+    /// another group is an error naming it); no groups, or an empty list:
+    /// A itself is factorised.
+    pub fn analyze_with(
+        a: &SparseColMat<usize, f64>,
+        kind: MatrixKind,
+        solves: Solves,
+        interior: Option<&InteriorGroups>,
+        what: &str,
+    ) -> Result<Self> {
         if a.nrows() != a.ncols() {
             return Err(Error::numerical(
                 what,
@@ -224,25 +301,26 @@ impl ReusableFactorization {
                 format!("{}×{} is not square", a.nrows(), a.ncols()),
             ));
         }
-        let symbolic = match kind {
-            MatrixKind::General => lu_analysis(a, what)?,
-            MatrixKind::SymmetricSaddle { n_primal } => SymbolicAnalysis::Ldlt {
-                symbolic: Arc::new(analyze_symmetric(a, n_primal, solves, what)?),
-                n_primal,
-            },
-            MatrixKind::SymmetricPositiveDefinite => SymbolicAnalysis::Llt(
-                SymbolicLlt::try_new(a.symbolic(), Side::Lower)
-                    .map_err(|e| Error::numerical(what, "Cholesky (symbolic)", format!("{e:?}")))?,
-            ),
+        let (direct, condensation) = match interior.filter(|g| !g.is_empty()) {
+            None => (DirectFactorizer::analyze(a, kind, solves, what)?, None),
+            Some(groups) => {
+                let plan = CondensationPlan::new(a, groups, kind, what)?;
+                let direct = DirectFactorizer::analyze(
+                    &plan.schur_pattern(),
+                    plan.schur_kind,
+                    solves,
+                    what,
+                )?;
+                (direct, Some(Arc::new(plan)))
+            }
         };
         let (col_ptr, row_idx) = pattern_of(a);
         Ok(ReusableFactorization {
-            symbolic,
             nrows: a.nrows(),
             col_ptr,
             row_idx,
-            symbolic_analyses: 1,
-            numeric_factorizations: 0,
+            direct,
+            condensation,
         })
     }
 
@@ -275,13 +353,103 @@ impl ReusableFactorization {
                 "the matrix does not have the pattern of the symbolic analysis",
             ));
         }
-        if let Some(k) = first_non_finite(a.val()) {
-            return Err(Error::numerical(
-                what,
-                "matrix entries",
-                format!("entry {k} is not finite"),
-            ));
+        let Some(plan) = &self.condensation else {
+            return self.direct.factorize_and_solve(a, b, what);
+        };
+        check_entries(a, what)?;
+        let (s, local) = plan.condense(a, what)?;
+        let b_s = plan.condense_rhs(&local, b, false);
+        let (schur, x_r, _) = self.direct.factorize_and_solve(&s, &b_s, what)?;
+        let mut x = b.to_vec();
+        plan.recover(&local, &x_r, &mut x, false);
+        let f = Factorization::Condensed(Box::new(CondensedFactorization {
+            plan: plan.clone(),
+            local,
+            schur,
+        }));
+        // Judged on A itself: the local eliminations are not refined.
+        if norm_inf(b) == 0.0 {
+            let (x, rel) = check_solve(a, &f, b, what)?;
+            return Ok((f, x, rel));
         }
+        let rel = judge_solve(a, &x, b, what)?;
+        Ok((f, x, rel))
+    }
+
+    /// The factorisation in use: "Cholesky", "LDLᵀ" or "LU" (after a
+    /// fallback, the one now used); of S when condensed.
+    pub fn method(&self) -> &'static str {
+        match &self.direct.symbolic {
+            SymbolicAnalysis::Llt(_) => "Cholesky",
+            SymbolicAnalysis::Ldlt { .. } => "LDLᵀ",
+            SymbolicAnalysis::Lu(_) => "LU",
+        }
+    }
+
+    /// Symbolic analyses done (1: the one of [`ReusableFactorization::analyze`]).
+    pub fn symbolic_analyses(&self) -> usize {
+        self.direct.symbolic_analyses
+    }
+
+    /// Numeric factorisations done with the one symbolic analysis.
+    pub fn numeric_factorizations(&self) -> usize {
+        self.direct.numeric_factorizations
+    }
+
+    /// The order of the factorised matrix: A's, or S's when condensed.
+    pub fn factorized_order(&self) -> usize {
+        self.condensation
+            .as_ref()
+            .map_or(self.nrows, |plan| plan.n_schur())
+    }
+}
+
+/// An error when an entry of `a` is not finite.
+fn check_entries(a: &SparseColMat<usize, f64>, what: &str) -> Result<()> {
+    match first_non_finite(a.val()) {
+        Some(k) => Err(Error::numerical(
+            what,
+            "matrix entries",
+            format!("entry {k} is not finite"),
+        )),
+        None => Ok(()),
+    }
+}
+
+impl DirectFactorizer {
+    fn analyze(
+        a: &SparseColMat<usize, f64>,
+        kind: MatrixKind,
+        solves: Solves,
+        what: &str,
+    ) -> Result<Self> {
+        let symbolic = match kind {
+            MatrixKind::General => lu_analysis(a, what)?,
+            MatrixKind::SymmetricSaddle { n_primal } => SymbolicAnalysis::Ldlt {
+                symbolic: Arc::new(analyze_symmetric(a, n_primal, solves, what)?),
+                n_primal,
+            },
+            MatrixKind::SymmetricPositiveDefinite => SymbolicAnalysis::Llt(
+                SymbolicLlt::try_new(a.symbolic(), Side::Lower)
+                    .map_err(|e| Error::numerical(what, "Cholesky (symbolic)", format!("{e:?}")))?,
+            ),
+        };
+        Ok(DirectFactorizer {
+            symbolic,
+            symbolic_analyses: 1,
+            numeric_factorizations: 0,
+        })
+    }
+
+    /// Numeric factorisation of `a` (of the analysed pattern) and the
+    /// checked solve of A x = b (see [`ReusableFactorization::factorize_and_solve`]).
+    fn factorize_and_solve(
+        &mut self,
+        a: &SparseColMat<usize, f64>,
+        b: &[f64],
+        what: &str,
+    ) -> Result<(Factorization, Vec<f64>, f64)> {
+        check_entries(a, what)?;
         let f = match &self.symbolic {
             SymbolicAnalysis::Lu(symbolic) => Factorization::Lu(Box::new(
                 Lu::try_new_with_symbolic(symbolic.clone(), a.as_ref()).map_err(|e| {
@@ -380,26 +548,6 @@ impl ReusableFactorization {
         self.symbolic_analyses += 1;
         self.factorize_and_solve(a, b, what)
     }
-
-    /// The factorisation in use: "Cholesky", "LDLᵀ" or "LU" (after a
-    /// fallback, the one now used).
-    pub fn method(&self) -> &'static str {
-        match &self.symbolic {
-            SymbolicAnalysis::Llt(_) => "Cholesky",
-            SymbolicAnalysis::Ldlt { .. } => "LDLᵀ",
-            SymbolicAnalysis::Lu(_) => "LU",
-        }
-    }
-
-    /// Symbolic analyses done (1: the one of [`ReusableFactorization::analyze`]).
-    pub fn symbolic_analyses(&self) -> usize {
-        self.symbolic_analyses
-    }
-
-    /// Numeric factorisations done with the one symbolic analysis.
-    pub fn numeric_factorizations(&self) -> usize {
-        self.numeric_factorizations
-    }
 }
 
 /// Column pointers and row indices of `a` in compact form.
@@ -425,6 +573,9 @@ impl Factorization {
             }
             Factorization::Ldlt(f) => f.solve_block_in_place(b, k),
             Factorization::Lu(f) => f.solve_in_place(MatMut::from_column_major_slice_mut(b, n, k)),
+            Factorization::Condensed(f) => b
+                .chunks_exact_mut(n)
+                .for_each(|col| f.solve_in_place(col, false)),
         }
     }
 
@@ -437,6 +588,9 @@ impl Factorization {
             Factorization::Lu(f) => {
                 f.solve_transpose_in_place(MatMut::from_column_major_slice_mut(b, n, k))
             }
+            Factorization::Condensed(f) => b
+                .chunks_exact_mut(n)
+                .for_each(|col| f.solve_in_place(col, true)),
         }
     }
 

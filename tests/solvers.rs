@@ -402,6 +402,7 @@ fn active_set_detects_cycling() {
             obstacle: vec![0.0; 3],
             weights: vec![1.0; 3],
         }),
+        interior: None,
     };
     let err = active_set(
         &problem,
