@@ -202,10 +202,11 @@ pub fn run_case(
         }
         // One factorisation and the one checked solve of A x = F …
         let t = Instant::now();
-        let (factorization, _, _) = ReusableFactorization::analyze(
+        let (factorization, _, _) = ReusableFactorization::analyze_with(
             &problem.matrix,
             problem.kind,
             Solves::Few,
+            problem.interior.as_ref(),
             "system matrix",
         )?
         .factorize_and_solve(&problem.matrix, &problem.rhs, "system matrix")?;
