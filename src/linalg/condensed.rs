@@ -131,6 +131,15 @@ impl CondensationPlan {
         let fail = |field: String, reason: String| Error::numerical(what, &field, reason);
         let mut group_of = vec![NONE; n];
         for g in 0..groups.len() {
+            if groups.group(g).len() > MAX_INLINE {
+                return Err(fail(
+                    format!("interior group {g}"),
+                    format!(
+                        "{} unknowns: at most {MAX_INLINE} per group (an element's interior)",
+                        groups.group(g).len()
+                    ),
+                ));
+            }
             for &i in groups.group(g) {
                 if i >= n {
                     return Err(fail(
@@ -397,22 +406,29 @@ impl CondensationPlan {
     /// of Aᵀ, b_R − A_IRᵀ A_II⁻ᵀ b_I).
     pub(super) fn condense_rhs(&self, f: &LocalFactors, b: &[f64], transpose: bool) -> Vec<f64> {
         let mut rhs: Vec<f64> = self.remaining.iter().map(|&i| b[i]).collect();
+        // V (q×p, row-major) for A of a non-symmetric matrix; else Wᵀ, read
+        // from W (p×q, row-major).
+        let v = f.transposed_coupling.as_ref().filter(|_| !transpose);
+        let mut b_i = [0.0; MAX_INLINE];
         for g in 0..self.groups.len() {
             let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
             let (p, q) = (interior.len(), boundary.len());
+            if q == 0 {
+                continue; // a triangle whose vertices are all fixed
+            }
             let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
-            match (&f.transposed_coupling, transpose) {
-                (Some(v), false) => {
-                    let v = &v[range];
-                    for (r, &s) in boundary.iter().enumerate() {
-                        rhs[s] -= (0..p).map(|i| v[r * p + i] * b[interior[i]]).sum::<f64>();
+            let b_i = gather(interior, b, &mut b_i);
+            match v {
+                Some(v) => {
+                    for (row, &s) in v[range].chunks_exact(p).zip(boundary) {
+                        rhs[s] -= dot(row, b_i);
                     }
                 }
-                // V = Wᵀ (symmetric), or the transposed system's own V.
-                _ => {
-                    let w = &f.coupling[range];
-                    for (r, &s) in boundary.iter().enumerate() {
-                        rhs[s] -= (0..p).map(|i| w[i * q + r] * b[interior[i]]).sum::<f64>();
+                None => {
+                    for (row, &bi) in f.coupling[range].chunks_exact(q).zip(b_i) {
+                        for (&w, &s) in row.iter().zip(boundary) {
+                            rhs[s] -= w * bi;
+                        }
                     }
                 }
             }
@@ -423,29 +439,29 @@ impl CondensationPlan {
     /// x from x_R (the solution of S, or Sᵀ) and the original b:
     /// x_I = A_II⁻¹ b_I − W x_R (transposed: A_II⁻ᵀ b_I − Vᵀ x_R), into b.
     pub(super) fn recover(&self, f: &LocalFactors, x_r: &[f64], b: &mut [f64], transpose: bool) {
-        let mut b_i = Vec::new();
+        let v = f.transposed_coupling.as_ref().filter(|_| transpose);
+        let (mut b_i, mut x_b) = ([0.0; MAX_INLINE], Vec::new());
         for g in 0..self.groups.len() {
             let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
             let (p, q) = (interior.len(), boundary.len());
             let inv = &f.inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
             let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
-            b_i.clear();
-            b_i.extend(interior.iter().map(|&u| b[u]));
+            let b_i = gather(interior, b, &mut b_i);
+            x_b.clear();
+            x_b.extend(boundary.iter().map(|&r| x_r[r]));
             for (i, &u) in interior.iter().enumerate() {
-                let local: f64 = if transpose {
-                    (0..p).map(|l| inv[l * p + i] * b_i[l]).sum()
-                } else {
-                    (0..p).map(|l| inv[i * p + l] * b_i[l]).sum()
-                };
-                let coupled: f64 = match (&f.transposed_coupling, transpose) {
-                    (Some(v), true) => {
-                        let v = &v[range.clone()];
-                        (0..q).map(|r| v[r * p + i] * x_r[boundary[r]]).sum()
-                    }
-                    _ => {
-                        let w = &f.coupling[range.clone()];
-                        (0..q).map(|r| w[i * q + r] * x_r[boundary[r]]).sum()
-                    }
+                let (local, coupled) = match (transpose, v) {
+                    (false, _) => (
+                        dot(&inv[i * p..(i + 1) * p], b_i),
+                        dot(&f.coupling[range.clone()][i * q..(i + 1) * q], &x_b),
+                    ),
+                    (true, v) => (
+                        (0..p).map(|l| inv[l * p + i] * b_i[l]).sum(),
+                        match v {
+                            Some(v) => (0..q).map(|r| v[range.start + r * p + i] * x_b[r]).sum(),
+                            None => dot(&f.coupling[range.clone()][i * q..(i + 1) * q], &x_b),
+                        },
+                    ),
                 };
                 b[u] = local - coupled;
             }
@@ -454,6 +470,27 @@ impl CondensationPlan {
             b[i] = x;
         }
     }
+}
+
+/// Unknowns per group at most: a group is one element's interior (the
+/// shell's have 5 or 7), and its values are copied to the stack.
+const MAX_INLINE: usize = 16;
+
+/// b at `indices` (at most [`MAX_INLINE`], checked by the plan), copied
+/// into `buffer`.
+fn gather<'a>(indices: &[usize], b: &[f64], buffer: &'a mut [f64; MAX_INLINE]) -> &'a [f64] {
+    assert!(
+        indices.len() <= MAX_INLINE,
+        "interior groups of at most {MAX_INLINE} unknowns (checked by the plan)"
+    );
+    for (slot, &i) in buffer.iter_mut().zip(indices) {
+        *slot = b[i];
+    }
+    &buffer[..indices.len()]
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// Buffers of the small dense inversions, reused across groups.
