@@ -111,7 +111,7 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
         let groups = condensed.interior.as_ref().expect("declared by the model");
         let triangles = condensed.n_multipliers().max(1);
         assert!(
-            groups.len() > 0 && groups.n_interior() >= groups.len(),
+            !groups.is_empty() && groups.n_interior() >= groups.len(),
             "{label}"
         );
         eprintln!(

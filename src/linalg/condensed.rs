@@ -360,7 +360,7 @@ impl CondensationPlan {
             }
             let at = |r: usize, c: usize| block[c * size + r];
             let inv = &mut inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
-            scratch.invert(p, |r, c| at(r, c), inv).map_err(|reason| {
+            scratch.invert(p, at, inv).map_err(|reason| {
                 Error::numerical(
                     what,
                     &format!("interior group {g} (unknowns {:?})", self.groups.group(g)),
