@@ -9,6 +9,7 @@ use crate::quadrature::TriangleRule;
 use crate::space::{Element, LocalBasis, Space, TriangleGeometry, MAX_LOCAL};
 use faer::sparse::{SparseColMat, Triplet};
 
+use crate::linalg::InteriorGroups;
 /// The sparse kernels live in linalg.rs; re-exported for the FE users.
 pub use crate::linalg::{mat_t_vec, mat_vec, norm2, norm_inf};
 
@@ -284,6 +285,20 @@ impl DofNumbering {
 
     pub fn restrict(&self, full: &[f64]) -> Vec<f64> {
         self.free_dofs.iter().map(|&d| full[d]).collect()
+    }
+
+    /// The interior groups of the free problem (static condensation): for
+    /// each of the `n_triangles` triangles t, the free indices of the dofs
+    /// `start + t`, one per bubble block starting at `start` (a bubble
+    /// vanishes on the boundary, so only a block fixed as a whole drops
+    /// out).
+    pub fn interior_groups(&self, bubble_starts: &[usize], n_triangles: usize) -> InteriorGroups {
+        InteriorGroups::from_groups((0..n_triangles).map(|t| {
+            bubble_starts
+                .iter()
+                .filter_map(|&start| self.free_index[start + t])
+                .collect()
+        }))
     }
 
     /// The full vector: free values from `reduced`, fixed ones from `fixed_values`.

@@ -437,9 +437,13 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 }
 
 /// The model's contact problem, checked: finite, every multiplier acting
-/// on a free unknown (`guards::check_assembled`).
+/// on a free unknown (`guards::check_assembled`); its interior groups
+/// dropped when the scene turns condensation off (`solver.condense`).
 pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
-    let problem = system.assemble()?;
+    let mut problem = system.assemble()?;
+    if !scene.solver.condense {
+        problem.interior = None;
+    }
     guards::check_assembled(scene, mesh, &problem)?;
     Ok(problem)
 }

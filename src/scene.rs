@@ -433,6 +433,11 @@ pub struct SolverSpec {
     /// PDAS (src/solvers/active_set.rs).
     #[serde(default)]
     pub cold_start: ColdStartSpec,
+    /// Static condensation of element-interior unknowns (bubbles) in every
+    /// factorisation (src/linalg/condensed.rs); false factorises the whole
+    /// matrix (the old floor, for benchmarks). Same results to round-off.
+    #[serde(default = "default_condense")]
+    pub condense: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
@@ -448,6 +453,9 @@ fn default_max_iter() -> i64 {
 }
 fn default_tol() -> f64 {
     1e-8
+}
+fn default_condense() -> bool {
+    true
 }
 fn default_thesis_tol() -> f64 {
     1e-5

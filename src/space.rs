@@ -222,6 +222,14 @@ impl<'m> Space<'m> {
         Space { mesh, element }
     }
 
+    /// The first bubble dof (that of triangle 0; triangle t's is this + t),
+    /// for an element with bubbles.
+    pub fn bubble_start(&self) -> Option<usize> {
+        self.element
+            .has_bubble()
+            .then(|| self.n_dofs() - self.mesh.n_triangles())
+    }
+
     pub fn n_dofs(&self) -> usize {
         let m = self.mesh;
         match self.element {

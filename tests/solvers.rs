@@ -12,7 +12,7 @@ use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{
-    factorize_checked, residual, MatrixKind, ReusableFactorization, Solves,
+    factorize_checked, factorize_checked_with, residual, MatrixKind, ReusableFactorization, Solves,
 };
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::membrane::MembraneSystem;
@@ -402,6 +402,7 @@ fn active_set_detects_cycling() {
             obstacle: vec![0.0; 3],
             weights: vec![1.0; 3],
         }),
+        interior: None,
     };
     let err = active_set(
         &problem,
@@ -674,7 +675,15 @@ fn the_entry_point_runs_every_method_and_the_linear_solve() {
         assert!(r.converged && r.alpha.is_none() && r.spectrum.is_none());
     }
 
-    let f = factorize_checked(&problem.matrix, problem.kind, Solves::Many, "A").unwrap();
+    // The factorisation Uzawa makes: condensed by the problem's interior groups.
+    let f = factorize_checked_with(
+        &problem.matrix,
+        problem.kind,
+        Solves::Many,
+        problem.interior.as_ref(),
+        "A",
+    )
+    .unwrap();
     let s = estimate_dual_spectrum(&problem, &f, StepForm::Mean, 50).unwrap();
     for (step, alpha) in [
         (

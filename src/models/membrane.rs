@@ -423,12 +423,17 @@ impl ModelSystem for MembraneSystem<'_> {
                 })
             }
         };
+        let bubbles: Vec<usize> = u.bubble_start().into_iter().collect();
         Ok(ContactProblem {
             matrix: k.into_sparse(),
             kind: MatrixKind::SymmetricPositiveDefinite,
             n_primal: rhs.len(),
             rhs,
             constraint,
+            interior: Some(
+                self.numbering
+                    .interior_groups(&bubbles, self.mesh.n_triangles()),
+            ),
         })
     }
 

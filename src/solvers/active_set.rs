@@ -308,10 +308,11 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             }
         }
     };
-    let mut factorizer = ReusableFactorization::analyze(
+    let mut factorizer = ReusableFactorization::analyze_with(
         &newton.matrix,
         kind,
         Solves::Few,
+        problem.interior.as_ref(),
         "active-set Newton matrix",
     )?;
     let mut report = ReportBuilder::new("active-set", start, 0.0, t.elapsed().as_secs_f64())

@@ -22,7 +22,7 @@ pub mod uzawa;
 pub mod uzawa_split;
 
 use crate::error::Result;
-use crate::linalg::{factorize_checked, Factorization, MatrixKind, Solves};
+use crate::linalg::{factorize_checked_with, Factorization, InteriorGroups, MatrixKind, Solves};
 use crate::progress::IterationProgress;
 use active_set::{active_set, ActiveSetOptions};
 use dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
@@ -70,6 +70,11 @@ pub struct ContactProblem {
     pub n_primal: usize,
     /// None: no obstacle, the problem is one linear solve.
     pub constraint: Option<Constraint>,
+    /// Unknowns that couple only inside their group (an element's
+    /// bubbles), declared by the model: every factorisation of A (and of
+    /// the active-set Newton matrix) condenses them. None: A is factorised
+    /// as it is.
+    pub interior: Option<InteriorGroups>,
 }
 
 impl ContactProblem {
@@ -120,10 +125,11 @@ pub(crate) fn factorize_system(
     solves: Solves,
 ) -> Result<(Factorization, f64)> {
     let t = Instant::now();
-    let factorization = factorize_checked(
+    let factorization = factorize_checked_with(
         &problem.matrix,
         problem.kind,
         solves,
+        problem.interior.as_ref(),
         problem.kind.describe(),
     )?;
     Ok((factorization, t.elapsed().as_secs_f64()))

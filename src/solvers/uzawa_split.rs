@@ -56,7 +56,7 @@ use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, MatrixKind, Solves};
+use crate::linalg::{factorize_checked_with, MatrixKind, Solves};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::solvers::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
@@ -176,10 +176,12 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
         ));
     }
     let t = Instant::now();
-    let factorization = factorize_checked(
+    let interior = problem.interior.as_ref().map(|g| g.restricted_to(np));
+    let factorization = factorize_checked_with(
         &k_block,
         MatrixKind::SymmetricPositiveDefinite,
         Solves::Many,
+        interior.as_ref(),
         "primal block K",
     )?;
     let factor_seconds = t.elapsed().as_secs_f64();
@@ -235,6 +237,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             rhs: vec![0.0; np],
             n_primal: np,
             constraint: Some(constraint),
+            interior: None,
         };
         estimate_dual_spectrum(&sub, &factorization, StepForm::Mean, options.lanczos_steps)
     };

@@ -668,12 +668,21 @@ pub fn restrict_shell(
     } else {
         MatrixKind::SymmetricPositiveDefinite
     };
+    // Every field's bubbles (ψ's too: a triangle's ψ bubble couples only
+    // with its own U bubbles and vertices).
+    let bubbles: Vec<usize> = layout
+        .fields
+        .iter()
+        .filter(|f| f.element.has_bubble())
+        .map(|f| f.offset + f.len - layout.n_triangles)
+        .collect();
     ContactProblem {
         matrix: a.into_sparse(),
         kind,
         rhs: numbering.restrict(f_full),
         n_primal,
         constraint: None,
+        interior: Some(numbering.interior_groups(&bubbles, layout.n_triangles)),
     }
 }
 
