@@ -125,11 +125,19 @@ pub(crate) fn factorize_system(
     solves: Solves,
 ) -> Result<(Factorization, f64)> {
     let t = Instant::now();
+    // Condensation pays per solve (fewer, denser factor entries) but its plan
+    // costs more than faer's symbolic analysis, and AMD eliminates the bubbles
+    // first anyway: for one solve the whole matrix is faster
+    // (docs/work-precision.md, "Condensation and threads").
+    let interior = match solves {
+        Solves::Many => problem.interior.as_ref(),
+        Solves::Few => None,
+    };
     let factorization = factorize_checked_with(
         &problem.matrix,
         problem.kind,
         solves,
-        problem.interior.as_ref(),
+        interior,
         problem.kind.describe(),
     )?;
     Ok((factorization, t.elapsed().as_secs_f64()))
