@@ -173,6 +173,13 @@ fn index_links_every_table_figure_and_result_with_one_line_each() {
         "4 plots, 1 result, 3 tables, a study's run and plot: {html}"
     );
     assert!(!html.contains("obstacle-tmp"), "a staging folder is listed");
+    // `make` twice: both pages are rewritten over the previous run's.
+    for args in [
+        vec!["report", result.to_str().unwrap()],
+        vec!["index", build.path().to_str().unwrap()],
+    ] {
+        check_success("a second report/index over the first", &run_obstacle(&args));
+    }
     assert!(
         !html.contains("disk.xdmf"),
         "only tables, figures and results are listed"

@@ -329,7 +329,7 @@ impl OutputKind {
         Some(match ext {
             "h5" => OutputKind::Hdf5,
             "msh" => OutputKind::Msh,
-            "xdmf" | "svg" => OutputKind::Xml,
+            "xdmf" | "svg" | "html" => OutputKind::Xml,
             "png" => OutputKind::Png,
             "md" | "csv" | "txt" => OutputKind::Text,
             _ => return None,
@@ -351,7 +351,7 @@ impl OutputKind {
         match self {
             OutputKind::Hdf5 => "an HDF5",
             OutputKind::Msh => "a gmsh mesh ($MeshFormat)",
-            OutputKind::Xml => "an XML",
+            OutputKind::Xml => "an XML/HTML",
             OutputKind::Png => "a PNG",
             OutputKind::Text => "a text",
         }
