@@ -15,8 +15,8 @@ use crate::mesh::Mesh;
 use crate::output::transaction::RemoveOnSignal;
 use crate::output::{numeric_attr, parse_space_tag, write_adaptive_result, AttrValue, ResultData};
 use crate::pipeline::{
-    assemble, output_folder, plot_path, result_data, scene_mesh, setup_model, solver_options,
-    warm_start, write_plots, RunSummary,
+    assemble, result_data, scene_mesh, setup_model, solver_options, stage_run_outputs, warm_start,
+    write_plots, RunSummary,
 };
 use crate::scene::{AdaptSpec, Scene};
 use crate::space::Space;
@@ -157,13 +157,7 @@ fn remesh(scene: &Scene, mesh: &Mesh, marked: &[bool], dir: &Path, step: usize) 
 pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRow>)> {
     let start = Instant::now();
     let spec = scene.adapt.as_ref().expect("run_adaptive needs [adapt]");
-    let dir = output_folder(out)?;
-    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
-    let outputs = crate::output::OutputTransaction::new(dir, stem, &scene.input_files())?;
-    let staged_out = outputs.stage_result(out, false)?;
-    for kind in &scene.output.plots {
-        outputs.stage(&plot_path(scene, out, *kind))?;
-    }
+    let (outputs, staged_out) = stage_run_outputs(scene, out)?;
     let meshes = tempfile::tempdir().map_err(|e| {
         Error::output(
             std::env::temp_dir(),

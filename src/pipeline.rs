@@ -367,15 +367,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         return crate::adapt::run_adaptive(scene, out).map(|(summary, _)| summary);
     }
     let start = Instant::now();
-    let dir = output_folder(out)?;
-    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
-    let outputs = OutputTransaction::new(dir, stem, &scene.input_files())?;
-    // Staging checks each target now, before the run, not after it.
-    // A shell's result has its 3D surface and a parameter-domain XDMF.
-    let staged_out = outputs.stage_result(out, scene.model == Model::Naghdi)?;
-    for kind in &scene.output.plots {
-        outputs.stage(&plot_path(scene, out, *kind))?;
-    }
+    let (outputs, staged_out) = stage_run_outputs(scene, out)?;
     let msh = match &scene.mesh.file {
         None => outputs.stage(&out.with_extension("msh"))?,
         Some(_) => PathBuf::new(), // the scene's own mesh file: nothing written
@@ -529,6 +521,21 @@ fn peak_rss_of(solver_attrs: &[(String, AttrValue)]) -> Vec<(String, f64)> {
         .collect()
 }
 
+/// A run's output transaction with its result (and companions) and the
+/// scene's plots staged: staging checks each target now, before the run,
+/// not after it. A shell's result has its 3D surface and a parameter-domain
+/// XDMF. Returns the transaction and the staged result path.
+pub fn stage_run_outputs(scene: &Scene, out: &Path) -> Result<(OutputTransaction, PathBuf)> {
+    let dir = output_folder(out)?;
+    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
+    let outputs = OutputTransaction::new(dir, stem, &scene.input_files())?;
+    let staged_out = outputs.stage_result(out, scene.model == Model::Naghdi)?;
+    for kind in &scene.output.plots {
+        outputs.stage(&plot_path(scene, out, *kind))?;
+    }
+    Ok((outputs, staged_out))
+}
+
 /// What a solve writes: the model's results, the scene text, the errors
 /// against the exact solution (`output.errors`), the `/solver` group and,
 /// for an adaptive scene or the "estimator" plot, the estimator.
@@ -578,7 +585,7 @@ fn add_estimator(
 }
 
 /// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
-pub fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
+fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
     let name = kind.name();
     out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))
 }
