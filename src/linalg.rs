@@ -88,13 +88,21 @@ impl CondensedFactorization {
     /// Solves A x = b (or Aᵀ x = b) in place: condense b, solve S,
     /// recover; then refined against A (not Aᵀ) to round-off.
     fn solve_in_place(&self, b: &mut [f64], transpose: bool) {
-        let rhs = (!transpose).then(|| b.to_vec());
-        self.raw_solve(b, transpose);
-        if let Some(rhs) = rhs {
-            refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| {
-                self.raw_solve(d, false)
-            });
+        if transpose {
+            self.raw_solve(b, true);
+        } else {
+            self.solve_with_product(b);
         }
+    }
+
+    /// Solves A x = b, refined; returns A x from the refinement's last residual.
+    fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
+        let rhs = b.to_vec();
+        self.raw_solve(b, false);
+        refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| {
+            self.raw_solve(d, false)
+        })
+        .0
     }
 
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
@@ -117,6 +125,20 @@ impl Factorization {
     /// Solves A x = b in place.
     pub fn solve_in_place(&self, b: &mut [f64]) {
         self.solve_block_in_place(b, 1);
+    }
+
+    /// Solves A x = b in place (the same x as [`Factorization::solve_in_place`])
+    /// and returns A x when the solve computed it for its refinement (LDLᵀ,
+    /// condensed); None for Cholesky and LU, which do not refine.
+    pub fn solve_with_product(&self, b: &mut [f64]) -> Option<Vec<f64>> {
+        match self {
+            Factorization::Ldlt(f) if !f.raw_solves_suffice => Some(f.solve_with_product(b)),
+            Factorization::Condensed(f) => Some(f.solve_with_product(b)),
+            _ => {
+                self.solve_in_place(b);
+                None
+            }
+        }
     }
 }
 
@@ -221,8 +243,12 @@ fn test_rhs(n: usize) -> Vec<f64> {
 
 /// r = b − A x.
 pub fn residual(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64]) -> Vec<f64> {
-    let ax = mat_vec(a, x);
-    b.iter().zip(&ax).map(|(p, q)| p - q).collect()
+    difference(b, &mat_vec(a, x))
+}
+
+/// b − a.
+fn difference(b: &[f64], a: &[f64]) -> Vec<f64> {
+    b.iter().zip(a).map(|(p, q)| p - q).collect()
 }
 
 /// `steps` steps of iterative refinement x ← x + A⁻¹(b − A x) of a solution
@@ -380,7 +406,10 @@ impl ReusableFactorization {
         check_entries(a, what)?;
         let (s, local) = plan.condense(a, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
-        let (schur, x_r, _) = self.direct.factorize_and_solve(&s, &b_s, what)?;
+        let (mut schur, x_r, _) = self.direct.factorize_and_solve(&s, &b_s, what)?;
+        if let Factorization::Ldlt(ldlt) = &mut schur {
+            ldlt.skip_refinement_if_exact();
+        }
         let mut x = b.to_vec();
         plan.recover(&local, &x_r, &mut x, false);
         let condensed = CondensedFactorization {
@@ -775,6 +804,10 @@ pub struct RegularizedLdlt {
     scale: Vec<f64>,
     matrix: SparseColMat<usize, f64>,
     norm: f64,
+    /// Solves skip the refinement against this matrix: set only inside a
+    /// condensed factorisation (which refines against A anyway) when a test
+    /// solve met round-off without a step (no pivot regularised).
+    raw_solves_suffice: bool,
 }
 
 impl RegularizedLdlt {
@@ -823,7 +856,22 @@ impl RegularizedLdlt {
             scale,
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
             matrix: a.clone(),
+            raw_solves_suffice: false,
         })
+    }
+
+    /// Lets solves skip the refinement against this matrix when one raw
+    /// test solve is at round-off already (the many-solves order
+    /// regularises no pivot): for S inside a condensed factorisation, whose
+    /// solves are refined against A, this saves a product with S per solve.
+    fn skip_refinement_if_exact(&mut self) {
+        let rhs = test_rhs(self.matrix.nrows());
+        let mut x = rhs.clone();
+        self.raw_solve(&mut x, 1);
+        let (_, steps) = refine_to_round_off(&self.matrix, self.norm, &mut x, &rhs, |d| {
+            self.raw_solve(d, 1)
+        });
+        self.raw_solves_suffice = steps == 0;
     }
 
     /// One solve with the (perturbed, equilibrated) factors, k columns:
@@ -851,6 +899,9 @@ impl RegularizedLdlt {
     /// against A ([`refine_to_round_off`]).
     fn solve_block_in_place(&self, b: &mut [f64], k: usize) {
         let n = self.matrix.nrows();
+        if self.raw_solves_suffice {
+            return self.raw_solve(b, k);
+        }
         let rhs = b.to_vec();
         self.raw_solve(b, k);
         for c in 0..k {
@@ -858,21 +909,34 @@ impl RegularizedLdlt {
             refine_to_round_off(&self.matrix, self.norm, x, bc, |d| self.raw_solve(d, 1));
         }
     }
+
+    /// Solves A x = b (one column) as [`RegularizedLdlt::solve_block_in_place`];
+    /// returns A x from the refinement's last residual.
+    fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
+        let rhs = b.to_vec();
+        self.raw_solve(b, 1);
+        refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| self.raw_solve(d, 1)).0
+    }
 }
 
 /// Iterative refinement x ← x + M⁻¹(b − A x) of a solution x of A x = b,
 /// M⁻¹ = `solve` (in place) an approximate inverse, until the residual
 /// stops falling or is at round-off level (‖r‖∞ ≤ 4ε (‖A‖ ‖x‖∞ + ‖b‖∞),
 /// `norm` = ‖A‖), at most [`MAX_REFINEMENT`] steps.
+/// Returns A x of the final x (the product its last residual used: callers
+/// that need A x, Uzawa's KKT measures, take it instead of a second product)
+/// and the steps kept.
 fn refine_to_round_off(
     a: &SparseColMat<usize, f64>,
     norm: f64,
     x: &mut [f64],
     b: &[f64],
     solve: impl Fn(&mut [f64]),
-) {
-    let mut r = residual(a, x, b);
+) -> (Vec<f64>, usize) {
+    let mut ax = mat_vec(a, x);
+    let mut r = difference(b, &ax);
     let mut size = norm_inf(&r);
+    let mut steps = 0;
     for _ in 0..MAX_REFINEMENT {
         let floor = 4.0 * f64::EPSILON * (norm * norm_inf(x) + norm_inf(b));
         // (NaN stops too: NaN <= floor is false, so test "done" first.)
@@ -882,7 +946,8 @@ fn refine_to_round_off(
         let mut dx = r;
         solve(&mut dx);
         let candidate: Vec<f64> = x.iter().zip(&dx).map(|(xi, di)| xi + di).collect();
-        let r_new = residual(a, &candidate, b);
+        let ax_new = mat_vec(a, &candidate);
+        let r_new = difference(b, &ax_new);
         let size_new = norm_inf(&r_new);
         // Keep the step only while it pays: at the accuracy the
         // conditioning allows, refinement stalls or oscillates.
@@ -890,8 +955,10 @@ fn refine_to_round_off(
             break;
         }
         x.copy_from_slice(&candidate);
-        (r, size) = (r_new, size_new);
+        (ax, r, size) = (ax_new, r_new, size_new);
+        steps += 1;
     }
+    (ax, steps)
 }
 
 /// y = A x.

@@ -36,8 +36,43 @@ pub fn kkt_measures(
     lambda: &[f64],
     cx: Option<&[f64]>,
 ) -> KktMeasures {
+    kkt_measures_with(
+        problem,
+        x,
+        lambda,
+        Products {
+            cx,
+            ..Products::default()
+        },
+    )
+}
+
+/// Products of an iterate (x, λ) its solver has at hand: the measures take
+/// them instead of computing them again (the same functions, so the same
+/// numbers). None: computed here.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Products<'a> {
+    /// A x.
+    pub ax: Option<&'a [f64]>,
+    /// C x.
+    pub cx: Option<&'a [f64]>,
+    /// Cᵀ λ.
+    pub ct_lambda: Option<&'a [f64]>,
+}
+
+/// [`kkt_measures`] with the products the caller has.
+pub fn kkt_measures_with(
+    problem: &ContactProblem,
+    x: &[f64],
+    lambda: &[f64],
+    products: Products,
+) -> KktMeasures {
     let n_primal = problem.n_primal;
-    let mut r = mat_vec(&problem.matrix, x);
+    let cx = products.cx;
+    let mut r = match products.ax {
+        Some(ax) => ax.to_vec(),
+        None => mat_vec(&problem.matrix, x),
+    };
     // The scale of stationarity: the largest of its three terms ‖F‖, ‖A x‖,
     // ‖Cᵀλ‖ (primal rows), so a zero load (the obstacle alone pushes) is
     // not divided by ‖F‖ = 0; equal to ‖F‖ whenever the load dominates.
@@ -49,9 +84,16 @@ pub fn kkt_measures(
     let x_scale = norm_inf(&x[..n_primal]);
     let f_norm = norm2(&problem.rhs[..n_primal]).max(f64::MIN_POSITIVE);
     if let Some(c) = &problem.constraint {
-        let ct_lambda = mat_t_vec(&c.matrix, lambda);
+        let computed_ct;
+        let ct_lambda = match products.ct_lambda {
+            Some(v) => v,
+            None => {
+                computed_ct = mat_t_vec(&c.matrix, lambda);
+                &computed_ct
+            }
+        };
         force_scale = force_scale.max(norm2(&ct_lambda[..n_primal.min(ct_lambda.len())]));
-        for (ri, ci) in r.iter_mut().zip(&ct_lambda) {
+        for (ri, ci) in r.iter_mut().zip(ct_lambda) {
             *ri -= ci;
         }
         let computed;

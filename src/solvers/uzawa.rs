@@ -10,7 +10,7 @@
 //! (penetration ḡ < 0 raises λ). The reported iterate after k iterations is
 //! (x^k, λ^k), and its KKT measures are computed honestly for that pair.
 
-use super::measures::{dual_step_norm, kkt_measures};
+use super::measures::{dual_step_norm, kkt_measures, kkt_measures_with, Products};
 use super::monitor::{check_finite, Monitor};
 use super::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use super::{factorize_system, named, ContactProblem, ReportBuilder, SolveReport};
@@ -149,13 +149,17 @@ pub fn uzawa(
     let bound = spectrum
         .map(|s| 2.0 / s.s_max)
         .filter(|b| b.is_finite() && *b > 0.0);
+    // Cᵀ λ^{k−1}: the right-hand side of iteration k and, computed at the
+    // end of iteration k−1, its stationarity measure; one product serves both.
+    let mut ct_lambda = mat_t_vec(&c.matrix, &lambda);
     for k in 1..=options.max_iter {
         // x^k = A⁻¹ (F + Cᵀ λ^{k−1})
-        x = mat_t_vec(&c.matrix, &lambda);
         x.iter_mut()
+            .zip(&ct_lambda)
             .zip(&problem.rhs)
-            .for_each(|(xi, fi)| *xi += fi);
-        factorization.solve_in_place(&mut x);
+            .for_each(|((xi, ci), fi)| *xi = ci + fi);
+        // A x^k as the solve's refinement computed it (the KKT measures' one).
+        let ax = factorization.solve_with_product(&mut x);
         monitor.finite(k, "primal iterate", &x)?;
         // λ^k = max(0, λ^{k−1} − α D ḡ(x^k))
         let cx = mat_vec(&c.matrix, &x);
@@ -168,7 +172,13 @@ pub fn uzawa(
         monitor.finite(k, "multiplier λ", &new_lambda)?;
         let step = dual_step_norm(&new_lambda, &lambda, &c.weights, options.dual_norm);
         lambda = new_lambda;
-        let measures = kkt_measures(problem, &x, &lambda, Some(&cx));
+        ct_lambda = mat_t_vec(&c.matrix, &lambda);
+        let products = Products {
+            ax: ax.as_deref(),
+            cx: Some(&cx),
+            ct_lambda: Some(&ct_lambda),
+        };
+        let measures = kkt_measures_with(problem, &x, &lambda, products);
         let probe_values: Vec<f64> = probes.iter().map(|p| (p.evaluate)(&x, &lambda)).collect();
         report.record(k, step, measures, &probe_values);
 
