@@ -75,7 +75,8 @@ hard: build
 #   make compare SCENE=... [SET=...] [K=100]   Rust and FreeFEM, exactly K Uzawa iterations each, compared
 #   make compare-all                           every thesis scene both ways, one table
 #   make freefem-timings                       Rust vs FreeFEM time, same mesh/algorithm/K
-.PHONY: freefem compare compare-all freefem-timings
+#   make threads-timings                       solver.threads = 1 vs 2 (factorisation, Uzawa iteration)
+.PHONY: freefem compare compare-all freefem-timings threads-timings
 FREEFEM_OUT := $(BUILD)/freefem
 K ?= 100
 RTOL ?= 1e-8
@@ -148,6 +149,25 @@ freefem-timings: build
 	  ri=$$(attr $$out.rust.h5 iterations); fp=$$(attr $$out.h5 seconds_per_iteration); \
 	  rp=$$(calc %.3f "1000 * ($$rw - $$rf) / $$ri"); fpm=$$(calc %.3f "1000 * $$fp"); \
 	  echo "| $$scene $$set | $$mesh | $$(calc %.2f "$$t1 - $$t0") | $$(calc %.2f "$$t2 - $$t1") | $$rp | $$fpm | $$(calc %.1f "$$fpm / $$rp") |"; \
+	done
+
+# Threads (issue 13): `solver.threads` 1 vs 2, interleaved, K Uzawa iterations each;
+# factorisation (symbolic + numeric + checked solve) and per-iteration time, and the load.
+THREAD_CASES = naghdi-hypar:mesh.n=64 naghdi-hypar:mesh.n=128 obstacle-disk:mesh.n=128
+THREAD_REPEATS ?= 2
+threads-timings: build
+	@mkdir -p $(FREEFEM_OUT); $(FF_SH); \
+	echo "K = $(K) Uzawa iterations; load $$(cut -d' ' -f1-3 /proc/loadavg)"; \
+	echo "| case | threads | factorisation (s) | per iteration (ms) | load |"; \
+	echo "|---|---:|---:|---:|---:|"; \
+	for c in $(THREAD_CASES); do \
+	  scene=$${c%%:*}; set=$${c#*:}; \
+	  for r in $$(seq $(THREAD_REPEATS)); do for t in 1 2; do \
+	    out=$(FREEFEM_OUT)/threads-$$scene-$${set#*=}-$$t; \
+	    $(BIN) solve pipelines/scenes/$$scene.toml --set $$set --set solver.threads=$$t $(FIXED_K) --quiet --out $$out.h5 > /dev/null 2>&1 || exit 1; \
+	    rw=$$(attr $$out.h5 wall_seconds); rf=$$(attr $$out.h5 factor_seconds); ri=$$(attr $$out.h5 iterations); \
+	    echo "| $$scene $$set | $$t | $$(calc %.2f "$$rf") | $$(calc %.2f "1000 * ($$rw - $$rf) / $$ri") | $$(cut -d' ' -f1 /proc/loadavg) |"; \
+	  done; done; \
 	done
 
 # --- Issue 5: benchmarks and work–precision studies (src/bench.rs) ----------

@@ -18,6 +18,31 @@ use std::sync::Arc;
 
 mod condensed;
 
+thread_local! {
+    /// Threads of the LDLᵀ factorisations and triangular solves made on this
+    /// thread ([`set_threads`]); 1: sequential.
+    static THREADS: std::cell::Cell<usize> = const { std::cell::Cell::new(1) };
+}
+
+/// Threads (faer's `Par::rayon`) for the LDLᵀ factorisations and solves made
+/// on the calling thread from now on (`solver.threads`; 1 or 0: sequential).
+/// Per thread, so concurrent runs (tests, `study --jobs`) keep their own.
+/// Cholesky and LU stay sequential.
+pub fn set_threads(threads: usize) {
+    THREADS.with(|t| t.set(threads.max(1)));
+}
+
+/// The parallelism of [`set_threads`]. faer's global setting, which its
+/// Cholesky and LU read, is kept sequential (with faer's `rayon` feature it
+/// would default to every core).
+fn parallelism() -> Par {
+    faer::set_global_parallelism(Par::Seq);
+    match THREADS.with(|t| t.get()) {
+        1 => Par::Seq,
+        n => Par::rayon(n),
+    }
+}
+
 pub use condensed::InteriorGroups;
 use condensed::{CondensationPlan, LocalFactors};
 
@@ -517,6 +542,7 @@ impl DirectFactorizer {
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         check_entries(a, what)?;
+        parallelism();
         let f = match &self.symbolic {
             SymbolicAnalysis::Lu(symbolic) => Factorization::Lu(Box::new(
                 Lu::try_new_with_symbolic(symbolic.clone(), a.as_ref()).map_err(|e| {
@@ -634,6 +660,7 @@ impl Factorization {
     /// Solves A X = B in place for the k columns of B (column-major).
     pub fn solve_block_in_place(&self, b: &mut [f64], k: usize) {
         let n = b.len() / k.max(1);
+        parallelism();
         match self {
             Factorization::Cholesky(f) => {
                 f.solve_in_place(MatMut::from_column_major_slice_mut(b, n, k))
@@ -832,7 +859,7 @@ impl RegularizedLdlt {
         let scaled_norm = norm_inf(scaled.val()).max(f64::MIN_POSITIVE);
         let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
         let mut values = vec![0.0; symbolic.len_val()];
-        let par = Par::Seq;
+        let par = parallelism();
         let mut buffer =
             MemBuffer::new(symbolic.factorize_numeric_ldlt_scratch::<f64>(par, Default::default()));
         symbolic
@@ -878,7 +905,7 @@ impl RegularizedLdlt {
     /// x = D (D A D)⁻¹ D b.
     fn raw_solve(&self, b: &mut [f64], k: usize) {
         let n = self.matrix.nrows();
-        let par = Par::Seq;
+        let par = parallelism();
         let scale_all = |b: &mut [f64]| {
             for col in b.chunks_exact_mut(n) {
                 col.iter_mut().zip(&self.scale).for_each(|(v, d)| *v *= d);

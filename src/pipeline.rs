@@ -430,12 +430,14 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
 /// The model's contact problem, checked: finite, every multiplier acting
 /// on a free unknown (`guards::check_assembled`); its interior groups
-/// dropped when the scene turns condensation off (`solver.condense`).
+/// dropped when the scene turns condensation off (`solver.condense`); the
+/// factorisations of this thread use `solver.threads`.
 pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
     let mut problem = system.assemble()?;
     if !scene.solver.condense {
         problem.interior = None;
     }
+    crate::linalg::set_threads(scene.solver.threads as usize);
     guards::check_assembled(scene, mesh, &problem)?;
     Ok(problem)
 }
@@ -648,6 +650,7 @@ fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
         ("tol".into(), AttrValue::F64(s.tol)),
         ("thesis_tol".into(), AttrValue::F64(s.thesis_tol)),
         ("max_iter".into(), AttrValue::I64(s.max_iter)),
+        ("threads".into(), AttrValue::I64(s.threads)),
         (
             "stop".into(),
             AttrValue::Str(format!("{:?}", s.stop).to_lowercase()),

@@ -438,6 +438,10 @@ pub struct SolverSpec {
     /// matrix (the old floor, for benchmarks). Same results to round-off.
     #[serde(default = "default_condense")]
     pub condense: bool,
+    /// Threads of the LDLᵀ factorisations and solves (faer's rayon; 1:
+    /// sequential). Same results to round-off (docs/work-precision.md, "Threads").
+    #[serde(default = "default_threads")]
+    pub threads: i64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
@@ -456,6 +460,9 @@ fn default_tol() -> f64 {
 }
 fn default_condense() -> bool {
     true
+}
+fn default_threads() -> i64 {
+    1
 }
 fn default_thesis_tol() -> f64 {
     1e-5
@@ -825,6 +832,12 @@ impl Scene {
                     "name the dual step form: \"mean\" or \"integral\" (docs/formulation.md §3)",
                 ));
             }
+        }
+        if !(1..=64).contains(&s.threads) {
+            return Err(self.error(
+                "solver.threads",
+                format!("must be between 1 and 64, got {}", s.threads),
+            ));
         }
         if !(1..=100_000_000).contains(&s.max_iter) {
             return Err(self.error(

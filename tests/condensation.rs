@@ -178,6 +178,49 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
     }
 }
 
+/// `solver.threads = 2` (faer's rayon in the LDLᵀ factorisation and
+/// solves) gives the sequential run's iterates: 40 Uzawa iterations on the
+/// shell p1b-p0 at n = 16, condensed and whole, x and λ to 1e-12, the
+/// Lanczos α to 1e-10, the same KKT history to 1e-8 relative.
+#[test]
+fn threaded_factorisations_give_the_sequential_iterates() {
+    let (_, scene, overrides) = PROBLEMS[1];
+    let options = SolverOptions::Uzawa(UzawaOptions {
+        step: UzawaStep::StabilityFactor(0.5),
+        step_form: StepForm::Mean,
+        max_iter: 40,
+        tol: 0.0,
+        stop: StopRule::Kkt,
+        thesis_tol: 0.0,
+        dual_norm: DualNorm::L2,
+        show_progress: false,
+    });
+    let run = |threads: &str, condense: &str| {
+        let mut sets = overrides.to_vec();
+        sets.extend([threads, condense]);
+        // `assemble` sets this thread's factorisation threads from the scene.
+        let p = problem(scene, &sets);
+        solve(&p, &options, &[]).unwrap()
+    };
+    for condense in ["solver.condense=true", "solver.condense=false"] {
+        let sequential = run("solver.threads=1", condense);
+        let threaded = run("solver.threads=2", condense);
+        let (a, b) = (threaded.alpha.unwrap(), sequential.alpha.unwrap());
+        assert!((a - b).abs() <= 1e-10 * b, "{condense}: α {a} vs {b}");
+        assert_same(condense, "Uzawa, 2 threads", &threaded, &sequential, 1e-12);
+        let (kt, ks) = (
+            threaded.history.column("kkt").unwrap(),
+            sequential.history.column("kkt").unwrap(),
+        );
+        assert_eq!(kt.len(), 40, "{condense}");
+        assert!(
+            relative(kt, ks) <= 1e-8,
+            "{condense}: KKT history differs by {:.1e}",
+            relative(kt, ks)
+        );
+    }
+}
+
 /// The active set: the same Newton steps, the same active set at the end
 /// and the same solution to 1e-10, one symbolic analysis (of S) for all
 /// steps.
