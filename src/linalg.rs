@@ -127,7 +127,6 @@ impl CondensedFactorization {
         refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| {
             self.raw_solve(d, false)
         })
-        .0
     }
 
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
@@ -432,7 +431,8 @@ impl ReusableFactorization {
         let (s, local) = plan.condense(a, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
         let (mut schur, x_r, _) = self.direct.factorize_and_solve(&s, &b_s, what)?;
-        if let Factorization::Ldlt(ldlt) = &mut schur {
+        // Only for many solves: the few-solves (AMD) order regularises pivots.
+        if let (Factorization::Ldlt(ldlt), Solves::Many) = (&mut schur, self.solves) {
             ldlt.skip_refinement_if_exact();
         }
         let mut x = b.to_vec();
@@ -895,10 +895,8 @@ impl RegularizedLdlt {
         let rhs = test_rhs(self.matrix.nrows());
         let mut x = rhs.clone();
         self.raw_solve(&mut x, 1);
-        let (_, steps) = refine_to_round_off(&self.matrix, self.norm, &mut x, &rhs, |d| {
-            self.raw_solve(d, 1)
-        });
-        self.raw_solves_suffice = steps == 0;
+        let r = norm_inf(&residual(&self.matrix, &x, &rhs));
+        self.raw_solves_suffice = r <= round_off(self.norm, &x, &rhs);
     }
 
     /// One solve with the (perturbed, equilibrated) factors, k columns:
@@ -942,7 +940,7 @@ impl RegularizedLdlt {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         let rhs = b.to_vec();
         self.raw_solve(b, 1);
-        refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| self.raw_solve(d, 1)).0
+        refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| self.raw_solve(d, 1))
     }
 }
 
@@ -951,21 +949,19 @@ impl RegularizedLdlt {
 /// stops falling or is at round-off level (‖r‖∞ ≤ 4ε (‖A‖ ‖x‖∞ + ‖b‖∞),
 /// `norm` = ‖A‖), at most [`MAX_REFINEMENT`] steps.
 /// Returns A x of the final x (the product its last residual used: callers
-/// that need A x, Uzawa's KKT measures, take it instead of a second product)
-/// and the steps kept.
+/// that need A x, Uzawa's KKT measures, take it instead of a second product).
 fn refine_to_round_off(
     a: &SparseColMat<usize, f64>,
     norm: f64,
     x: &mut [f64],
     b: &[f64],
     solve: impl Fn(&mut [f64]),
-) -> (Vec<f64>, usize) {
+) -> Vec<f64> {
     let mut ax = mat_vec(a, x);
     let mut r = difference(b, &ax);
     let mut size = norm_inf(&r);
-    let mut steps = 0;
     for _ in 0..MAX_REFINEMENT {
-        let floor = 4.0 * f64::EPSILON * (norm * norm_inf(x) + norm_inf(b));
+        let floor = round_off(norm, x, b);
         // (NaN stops too: NaN <= floor is false, so test "done" first.)
         if size.is_nan() || size <= floor {
             break;
@@ -983,9 +979,13 @@ fn refine_to_round_off(
         }
         x.copy_from_slice(&candidate);
         (ax, r, size) = (ax_new, r_new, size_new);
-        steps += 1;
     }
-    (ax, steps)
+    ax
+}
+
+/// The round-off level 4ε (‖A‖ ‖x‖∞ + ‖b‖∞) of a residual of A x = b.
+fn round_off(norm: f64, x: &[f64], b: &[f64]) -> f64 {
+    4.0 * f64::EPSILON * (norm * norm_inf(x) + norm_inf(b))
 }
 
 /// y = A x.
