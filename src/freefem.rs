@@ -31,8 +31,8 @@ use crate::models::named_boundary_tags;
 use crate::output::{write_result, AttrValue, OutputTransaction, ResultData};
 use crate::pipeline::{scene_mesh, setup_model};
 use crate::scene::{
-    Alpha, BoundaryCondition, ElementPair, Expression, Model, ObstacleShape, Scene, ShellSpec,
-    StepForm, StopRule,
+    Alpha, BoundaryCondition, ContactMultiplier, ElementPair, Expression, Model, ObstacleShape,
+    Scene, ShellSpec, StepForm, StopRule,
 };
 use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -412,6 +412,17 @@ pub fn script_args(
                     scene,
                     "load.edge",
                     "the FreeFEM script has no edge loads",
+                ));
+            }
+            if scene
+                .obstacle
+                .as_ref()
+                .is_some_and(|o| o.multiplier == Some(ContactMultiplier::P1))
+            {
+                return Err(scene_error(
+                    scene,
+                    "obstacle.multiplier",
+                    "the FreeFEM script has P0 contact multipliers only (multiplier = \"p0\", the default)",
                 ));
             }
             a.extend([

@@ -351,6 +351,28 @@ pub struct ObstacleSpec {
     pub lower: Option<Expression>,
     /// Shape "expression" (membrane), optional: u ≤ upper(x, y), the two-sided problem.
     pub upper: Option<Expression>,
+    /// Shell only: the space of the contact multiplier λ (default: the element's,
+    /// P0 for "p1b-p0", P1 for "p2b-psri"); the membrane's comes with `element`.
+    pub multiplier: Option<ContactMultiplier>,
+}
+
+/// The space of the shell's contact multiplier (scene `obstacle.multiplier`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ContactMultiplier {
+    /// One multiplier per triangle: the constraint on triangle means.
+    P0,
+    /// One multiplier per vertex: the constraint tested with the P1 hat functions.
+    P1,
+}
+
+impl ContactMultiplier {
+    pub fn name(self) -> &'static str {
+        match self {
+            ContactMultiplier::P0 => "p0",
+            ContactMultiplier::P1 => "p1",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -973,6 +995,12 @@ impl Scene {
             ));
         }
         if let Some(o) = &self.obstacle {
+            if o.multiplier.is_some() {
+                return Err(self.error(
+                    "obstacle.multiplier",
+                    "a shell key: the membrane's multiplier space comes with `element` (\"p1b-p0\": P0, \"p2-p1\": P1)",
+                ));
+            }
             match o.shape {
                 ObstacleShape::Paraboloid => {
                     if o.height.is_none() {
@@ -1179,6 +1207,12 @@ impl Scene {
                 return Err(self.error(
                     "obstacle.height",
                     "shape = \"rigid-surface\" needs height = \"<expression in x, y, r>\" (the body fills z < height)",
+                ));
+            }
+            if self.element == ElementPair::P2bPsri && o.multiplier == Some(ContactMultiplier::P0) {
+                return Err(self.error(
+                    "obstacle.multiplier",
+                    "\"p2b-psri\" has P1 contact multipliers only (multiplier = \"p1\"); \"p0\" goes with element = \"p1b-p0\"",
                 ));
             }
         }

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{field, mirror_map, root_attr};
+use common::{assert_one_error, field, mirror_map, root_attr, run_obstacle, scene_arg};
 
 use obstacle_fem::output::{read_result, AttrValue};
 use obstacle_fem::pipeline::{run_scene, RunSummary};
@@ -302,6 +302,8 @@ fn bad_shell_input() {
         ("obstacle.shape=paraboloid", "obstacle.shape"),
         ("output.plots=[\"u\"]", "output.plots"),
         ("load.f=[0.0, inf, 0.0]", "load.f[1]"),
+        ("obstacle.multiplier=\"p2\"", "obstacle.multiplier"),
+        ("obstacle.multiplier=1", "obstacle.multiplier"),
     ] {
         let e = scene(HYPAR, &[o]).unwrap_err().to_string();
         assert!(
@@ -349,4 +351,109 @@ fn active_set_starts_reach_the_same_solution_in_fewer_steps() {
             .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
         assert!(diff < 1e-8 * scale, "{diff:e}");
     }
+}
+
+/// `obstacle.multiplier = "p1"` on the thesis' element: one multiplier per
+/// vertex, the constraint tested with the P1 hats (docs/formulation.md §2).
+/// On 32×32 by active-set to KKT 1e-10: λ ≥ 0 and complementary to the
+/// mean gap at every vertex; against the default P0 multipliers on the same
+/// mesh (measured: contact area 400.4 vs 351.6, force 607.87 vs 607.56,
+/// u3 min −1.05220 vs −1.05230) the area is within 15% (the P1 area counts
+/// the lumped weight |star|/3 of every contact vertex, half a ring more at
+/// the rim), the force within 0.1%, u3 min within 1e-3.
+#[test]
+fn p1_multipliers_on_the_thesis_element() {
+    let dir = tempfile::tempdir().unwrap();
+    let solve = |multiplier: &str| {
+        let set = format!("obstacle.multiplier=\"{multiplier}\"");
+        let s = run(
+            HYPAR,
+            dir.path(),
+            multiplier,
+            &[
+                "mesh.n=32",
+                "solver.method=active-set",
+                "solver.tol=1e-10",
+                "output.plots=[]",
+                &set,
+            ],
+        )
+        .unwrap();
+        assert!(
+            s.converged && s.measures.kkt <= 1e-10,
+            "{multiplier}: {:?}",
+            s.measures
+        );
+        read_result(&s.result_file).unwrap()
+    };
+    let (p0, p1) = (solve("p0"), solve("p1"));
+    let (lambda, gap) = (field(&p1, "lambda"), field(&p1, "gap_mean"));
+    assert_eq!(lambda.len(), p1.vertices.len(), "one λ per vertex");
+    let gap_scale = field(&p1, "phi").iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let lambda_scale = lambda.iter().fold(0.0f64, |m, v| m.max(*v));
+    assert!(lambda_scale > 0.0);
+    for (i, (&l, &g)) in lambda.iter().zip(gap).enumerate() {
+        assert!(l >= 0.0, "λ_{i} = {l}");
+        assert!(g >= -1e-10 * gap_scale, "penetration {g} at vertex {i}");
+        assert!(
+            (l * g).abs() <= 1e-10 * gap_scale * lambda_scale,
+            "λ ḡ = {} at vertex {i}",
+            l * g
+        );
+    }
+    let attr = |file, name| match root_attr(file, name) {
+        AttrValue::F64(v) => v,
+        other => panic!("{name}: {other:?}"),
+    };
+    let rel = |name, tol: f64| {
+        let (a, b) = (attr(&p0, name), attr(&p1, name));
+        println!("{name}: p0 {a}, p1 {b}");
+        assert!((a - b).abs() <= tol * a.abs(), "{name}: p0 {a}, p1 {b}");
+    };
+    rel("contact_area", 0.15);
+    rel("contact_force", 1e-3);
+    rel("u3_min", 1e-3);
+}
+
+/// `obstacle.multiplier` where it does not apply: the membrane (its pair
+/// comes with `element`), P0 with `p2b-psri`, P1 in the FreeFEM twin of the
+/// thesis' element (refused before FreeFem++ runs); each error names the key.
+#[test]
+fn multiplier_option_refused_where_it_does_not_apply() {
+    for (scene_path, o, words) in [
+        (
+            "pipelines/scenes/obstacle-disk.toml",
+            "obstacle.multiplier=\"p1\"",
+            "membrane",
+        ),
+        (
+            "pipelines/scenes/shell/hypar-psri.toml",
+            "obstacle.multiplier=\"p0\"",
+            "p2b-psri",
+        ),
+    ] {
+        let e = scene(scene_path, &[o]).unwrap_err().to_string();
+        assert!(
+            e.contains(scene_path.rsplit('/').next().unwrap())
+                && e.contains("obstacle.multiplier")
+                && e.contains(words),
+            "{o}: {e}"
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ff.h5");
+    let o = run_obstacle(&[
+        "freefem",
+        &scene_arg("naghdi-hypar"),
+        "--set",
+        "obstacle.multiplier=\"p1\"",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_one_error(
+        &o,
+        &["naghdi-hypar.toml", "obstacle.multiplier", "P0"],
+        "freefem p1",
+    );
+    assert!(!out.exists());
 }

@@ -592,7 +592,7 @@ impl DepthBisection {
 }
 
 /// Neighbouring constraints: rows of C that share a column (for P0 contact,
-/// triangles sharing a vertex). Columns shared by more than 24 rows are
+/// triangles sharing a vertex; for P1, vertices within two edges). Columns shared by more than 24 rows are
 /// skipped (not a local neighbourhood).
 fn constraint_neighbours(c: &SparseColMat<usize, f64>) -> Vec<Vec<usize>> {
     let mut neighbours: Vec<Vec<usize>> = vec![Vec::new(); c.nrows()];

@@ -72,7 +72,8 @@ pub enum ShellElementKind {
 }
 
 impl ShellElementKind {
-    /// The space of the contact multiplier λ.
+    /// The element's own space of the contact multiplier λ (a scene may
+    /// choose P1 for `p1b-p0`: [`ShellLayout::with_multiplier`]).
     pub fn multiplier_element(self) -> Element {
         match self {
             ShellElementKind::P1bP0 => Element::P0,
@@ -111,6 +112,9 @@ pub struct ShellField {
 pub struct ShellLayout {
     pub kind: ShellElementKind,
     pub fields: Vec<ShellField>,
+    /// The space of the contact multiplier λ: P0 (one per triangle) or P1
+    /// (one per vertex).
+    pub multiplier: Element,
     pub n_vertices: usize,
     pub n_triangles: usize,
 }
@@ -163,9 +167,15 @@ impl ShellLayout {
         ShellLayout {
             kind,
             fields,
+            multiplier: kind.multiplier_element(),
             n_vertices: mesh.n_vertices(),
             n_triangles: mesh.n_triangles(),
         }
+    }
+
+    /// The layout with contact multipliers in `multiplier` (P0 or P1).
+    pub fn with_multiplier(self, multiplier: Element) -> Self {
+        ShellLayout { multiplier, ..self }
     }
 
     /// Dofs of one scalar P1⊕B3 field of the thesis' layout: Nv + Nt.
@@ -215,7 +225,7 @@ impl ShellLayout {
 
     /// Number of contact multipliers (one per triangle or per vertex).
     pub fn n_multipliers(&self) -> usize {
-        match self.kind.multiplier_element() {
+        match self.multiplier {
             Element::P0 => self.n_triangles,
             _ => self.n_vertices,
         }
@@ -891,8 +901,8 @@ pub fn constraint_factor(role: FieldRole, p: Option<&SurfacePoint>, half_eps: f6
     }
 }
 
-/// The contact of the tangent-rotation element with the plane z = level,
-/// with P1 multipliers (one per vertex, as the membrane's P2–P1 pair):
+/// The contact with the plane z = level with P1 multipliers (one per vertex,
+/// as the membrane's P2–P1 pair), for either element's layout:
 /// C row i = ∫ (v − ε/2 s)·e3 μ_i dx over the free dofs of `numbering`, with
 /// s·e3 = θ^β a_β·e3; g_i = ∫ Φ μ_i dx with Φ = (ε/2 a3 − φ)·e3 + level at
 /// the quadrature points; weights w_i = ∫ μ_i dx (the lumped P1 mass, whose

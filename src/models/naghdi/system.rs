@@ -29,7 +29,8 @@ use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::plot;
 use crate::quadrature::TriangleRule;
 use crate::scene::{
-    BoundaryCondition, BoundarySpec, ElementPair, Expression, PlotKind, Scene, ShellSpec,
+    BoundaryCondition, BoundarySpec, ContactMultiplier, ElementPair, Expression, PlotKind, Scene,
+    ShellSpec,
 };
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -258,7 +259,12 @@ impl<'m> NaghdiSystem<'m> {
             ElementPair::P2bPsri => ShellElementKind::P2bPsri,
             _ => ShellElementKind::P1bP0,
         };
-        let layout = ShellLayout::for_element(mesh, kind);
+        let mut layout = ShellLayout::for_element(mesh, kind);
+        match scene.obstacle.as_ref().and_then(|o| o.multiplier) {
+            Some(ContactMultiplier::P0) => layout = layout.with_multiplier(Element::P0),
+            Some(ContactMultiplier::P1) => layout = layout.with_multiplier(Element::P1),
+            None => {}
+        }
         let conditions = resolved_conditions(mesh, scene, shell)?;
         if let Some(x) = scene.output.probe {
             if PointLocator::new(mesh).locate(x).is_none() {
@@ -502,11 +508,10 @@ impl ModelSystem for NaghdiSystem<'_> {
             self.tangency_scale.set(sigma);
         }
         if let (Some(phi), Some(height)) = (&self.phi, &self.height) {
-            problem.constraint = Some(match self.layout.kind {
-                ShellElementKind::P1bP0 => {
-                    plane_constraint(self.mesh, &self.material, phi, &self.numbering)
-                }
-                ShellElementKind::P2bPsri => nodal_plane_constraint(
+            // P0 exists for the thesis' layout only (scene validation).
+            problem.constraint = Some(match self.layout.multiplier {
+                Element::P0 => plane_constraint(self.mesh, &self.material, phi, &self.numbering),
+                _ => nodal_plane_constraint(
                     self.mesh,
                     &self.layout,
                     &self.chart,
@@ -541,9 +546,9 @@ impl ModelSystem for NaghdiSystem<'_> {
             }
         }
         let tri = self.mesh.triangles[t];
-        let phi0: f64 = match self.layout.kind {
-            ShellElementKind::P1bP0 => (0..3).map(|k| l[k] * phi[tri[k]]).sum(),
-            ShellElementKind::P2bPsri => {
+        let phi0: f64 = match self.layout.multiplier {
+            Element::P0 => (0..3).map(|k| l[k] * phi[tri[k]]).sum(),
+            _ => {
                 let origin = self.chart.at([0.0, 0.0]);
                 obstacle_function(&origin, self.material.thickness)
                     + height.eval([origin.phi.x, origin.phi.y])
@@ -667,7 +672,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                 &mut data,
                 report.lambda.clone(),
                 c.mean_gaps(&report.x),
-                layout.kind.multiplier_element(),
+                layout.multiplier,
             );
             attrs.push(("contact_area", AttrValue::F64(area)));
             attrs.push(("contact_force", AttrValue::F64(force)));
