@@ -154,7 +154,8 @@ freefem-timings: build
 #   make bench   time / iterations / peak memory of every method to KKT 1e-6 and
 #                1e-10 (shell n = 16…128, disk n = 8…64) against one linear
 #                solve; table, CSV and plots in build/bench/ (~15 min)
-#   make scale   the shell at n = 128 and 256 (≥ 1e6 unknowns) with active-set
+#   make scale   the large runs (issue 13): shell n = 128, 256 (≥ 1e6 unknowns), the
+#                disk at n = 512 (≥ 1M, both pairs), p2b-psri n = 16…64 (~1 h)
 #   make study   work–precision: error against time, report in build/study/
 BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 
