@@ -16,21 +16,25 @@ use crate::mesh::Mesh;
 use crate::scene::{ElementPair, Model, Scene};
 use crate::solvers::ContactProblem;
 
-/// Bytes per unknown of a whole run (assembly, factorisation, iteration,
-/// output) factorising the whole matrix (`solver.condense = false`),
-/// calibrated on `make bench`/`make scale` (docs/work-precision.md): shell
+/// Bytes per unknown of a whole shell run (assembly, factorisation,
+/// iteration, output) factorising the whole matrix (`solver.condense =
+/// false`), calibrated on `make bench`/`make scale` (docs/work-precision.md):
 /// p1b-p0 n = 128, 378,631 unknowns, active set 1796 MB (4.7 KB each);
-/// n = 256, 1,510,919 unknowns, 7408 MB (4.9 KB). The membrane needs less.
-const BYTES_PER_UNKNOWN_WHOLE: f64 = 5.0e3;
+/// n = 256, 1,510,919 unknowns, 7408 MB (4.9 KB).
+const SHELL_BYTES_PER_UNKNOWN_WHOLE: f64 = 5.0e3;
 
 /// The same with static condensation (the default), which holds S, its
 /// factor, the local eliminations and a copy of A besides A: measured
-/// (docs/work-precision.md, "Scale after condensation") shell n = 64,
-/// 95,111 unknowns, 527 MB (5.5 KB each); n = 128, 378,631, 2157 MB
-/// (5.7 KB); n = 256, 1,510,919, above 16.5 GB (> 10.9 KB: out of memory
-/// under a 20 GB address-space limit). Twice the whole matrix's, so that
-/// n = 256 condensed is refused under the default limit.
-const BYTES_PER_UNKNOWN_CONDENSED: f64 = 1.2e4;
+/// (docs/work-precision.md, "Scale after condensation") n = 64, 95,111
+/// unknowns, 527 MB (5.5 KB each); n = 128, 378,631, 2157 MB (5.7 KB);
+/// n = 256, 1,510,919, above 16.5 GB (> 10.9 KB: out of memory under a
+/// 20 GB address-space limit).
+const SHELL_BYTES_PER_UNKNOWN_CONDENSED: f64 = 1.2e4;
+
+/// The membrane (one field, at most one bubble per triangle), condensed or
+/// not: the disk P1⊕B3–P0 at n = 512, 1,158,566 unknowns, active set
+/// 2606 MB (2.2 KB each).
+const MEMBRANE_BYTES_PER_UNKNOWN: f64 = 3.0e3;
 
 /// The part of `MemAvailable` a run may use by default.
 const MEMORY_FRACTION: f64 = 0.5;
@@ -59,10 +63,10 @@ fn unknowns_per_triangle(model: Model, element: ElementPair) -> f64 {
 /// The estimate for a mesh of `triangles` triangles.
 pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
     let unknowns = triangles * unknowns_per_triangle(scene.model, scene.element);
-    let bytes_per_unknown = if scene.solver.condense {
-        BYTES_PER_UNKNOWN_CONDENSED
-    } else {
-        BYTES_PER_UNKNOWN_WHOLE
+    let bytes_per_unknown = match (scene.model, scene.solver.condense) {
+        (Model::Membrane, _) => MEMBRANE_BYTES_PER_UNKNOWN,
+        (Model::Naghdi, true) => SHELL_BYTES_PER_UNKNOWN_CONDENSED,
+        (Model::Naghdi, false) => SHELL_BYTES_PER_UNKNOWN_WHOLE,
     };
     Estimate {
         triangles,
@@ -116,8 +120,8 @@ pub fn check_memory(scene: &Scene, e: &Estimate, when: &str) -> Result<()> {
     if e.bytes <= limit {
         return Ok(());
     }
-    // Condensation about doubles the memory (BYTES_PER_UNKNOWN_CONDENSED).
-    let whole = if scene.solver.condense {
+    // Condensation about doubles the shell's memory.
+    let whole = if scene.solver.condense && scene.model == Model::Naghdi {
         ", solver.condense = false (about half the memory)"
     } else {
         ""
@@ -323,6 +327,15 @@ mod tests {
                 e.bytes / 1e9
             );
         }
+        // The disk at n = 512 (P1⊕B3–P0, 1,158,566 unknowns at 2.5 per
+        // triangle, 2606 MB measured).
+        let disk = Scene::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/scenes/obstacle-disk.toml"),
+            &["element=p1b-p0".to_string()],
+        )
+        .unwrap();
+        let ratio = estimate(&disk, 1_158_566.0 / 2.5).bytes / 2606e6;
+        assert!((1.0..=1.5).contains(&ratio), "disk n = 512: {ratio:.2}×");
         // n = 512 (≈ 6.03M unknowns): not within 18 GB either way.
         assert!(shell_estimate(512.0, false).bytes > 30e9);
         assert!(shell_estimate(512.0, true).bytes > 70e9);
