@@ -16,11 +16,25 @@ use crate::mesh::Mesh;
 use crate::scene::{ElementPair, Model, Scene};
 use crate::solvers::ContactProblem;
 
-/// Bytes per unknown of a whole run (assembly, factorisation, iteration,
-/// output), calibrated on `make bench`/`make scale` (docs/work-precision.md):
-/// shell p1b-p0 n = 128, 378,631 unknowns, active set 1796 MB (4.7 KB each);
-/// n = 256, 1,510,919 unknowns, 7408 MB (4.9 KB). The membrane needs less.
-const BYTES_PER_UNKNOWN: f64 = 5.0e3;
+/// Bytes per unknown of a whole shell run (assembly, factorisation,
+/// iteration, output) factorising the whole matrix (`solver.condense =
+/// false`), calibrated on `make bench`/`make scale` (docs/work-precision.md):
+/// p1b-p0 n = 128, 378,631 unknowns, active set 1796 MB (4.7 KB each);
+/// n = 256, 1,510,919 unknowns, 7408 MB (4.9 KB).
+const SHELL_BYTES_PER_UNKNOWN_WHOLE: f64 = 5.0e3;
+
+/// The same with static condensation (the default), which holds S, its
+/// factor, the local eliminations and a copy of A besides A: measured
+/// (docs/work-precision.md, "Scale after condensation") n = 64, 95,111
+/// unknowns, 527 MB (5.5 KB each); n = 128, 378,631, 2157 MB (5.7 KB);
+/// n = 256, 1,510,919, above 16.5 GB (> 10.9 KB: out of memory under a
+/// 20 GB address-space limit).
+const SHELL_BYTES_PER_UNKNOWN_CONDENSED: f64 = 1.2e4;
+
+/// The membrane (one field, at most one bubble per triangle), condensed or
+/// not: the disk P1⊕B3–P0 at n = 512, 1,158,566 unknowns, active set
+/// 2606 MB (2.2 KB each).
+const MEMBRANE_BYTES_PER_UNKNOWN: f64 = 3.0e3;
 
 /// The part of `MemAvailable` a run may use by default.
 const MEMORY_FRACTION: f64 = 0.5;
@@ -49,10 +63,15 @@ fn unknowns_per_triangle(model: Model, element: ElementPair) -> f64 {
 /// The estimate for a mesh of `triangles` triangles.
 pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
     let unknowns = triangles * unknowns_per_triangle(scene.model, scene.element);
+    let bytes_per_unknown = match (scene.model, scene.solver.condense) {
+        (Model::Membrane, _) => MEMBRANE_BYTES_PER_UNKNOWN,
+        (Model::Naghdi, true) => SHELL_BYTES_PER_UNKNOWN_CONDENSED,
+        (Model::Naghdi, false) => SHELL_BYTES_PER_UNKNOWN_WHOLE,
+    };
     Estimate {
         triangles,
         unknowns,
-        bytes: unknowns * BYTES_PER_UNKNOWN,
+        bytes: unknowns * bytes_per_unknown,
     }
 }
 
@@ -101,6 +120,12 @@ pub fn check_memory(scene: &Scene, e: &Estimate, when: &str) -> Result<()> {
     if e.bytes <= limit {
         return Ok(());
     }
+    // Condensation about doubles the shell's memory.
+    let whole = if scene.solver.condense && scene.model == Model::Naghdi {
+        ", solver.condense = false (about half the memory)"
+    } else {
+        ""
+    };
     let field = if scene.mesh.n.is_some() {
         "mesh.n"
     } else {
@@ -110,7 +135,7 @@ pub fn check_memory(scene: &Scene, e: &Estimate, when: &str) -> Result<()> {
         file: scene.source.clone(),
         field: field.into(),
         reason: format!(
-            "{when}: about {:.3e} triangles and {:.3e} unknowns need ~{:.3} GB, above the limit {:.3} GB = {source}; a coarser mesh, or set mesh.memory_limit_gb to allow more",
+            "{when}: about {:.3e} triangles and {:.3e} unknowns need ~{:.3} GB, above the limit {:.3} GB = {source}; a coarser mesh{whole}, or set mesh.memory_limit_gb to allow more",
             e.triangles,
             e.unknowns,
             e.bytes / 1e9,
@@ -260,5 +285,83 @@ pub fn name_matrix_inputs(scene: &Scene, e: Error) -> Error {
             }
         }
         e => e,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn hypar(sets: &[&str]) -> Scene {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/scenes/naghdi-hypar.toml");
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        Scene::load(&path, &sets).unwrap()
+    }
+
+    /// The thesis shell's mesh (the diamond) has 2 n² triangles.
+    fn shell_estimate(n: f64, condense: bool) -> Estimate {
+        let scene = hypar(&[&format!("solver.condense={condense}")]);
+        estimate(&scene, 2.0 * n * n)
+    }
+
+    #[test]
+    fn the_estimate_covers_the_measured_peaks() {
+        // (n, condensed, measured peak RSS in MB of active set to 1e-8;
+        // docs/work-precision.md "Scale" and "Scale after condensation").
+        // n = 256 condensed ran out of memory at 16.5 GB.
+        let measured = [
+            (64.0, true, 527.0),
+            (128.0, true, 2157.0),
+            (256.0, true, 16531.0),
+            (128.0, false, 1796.0),
+            (256.0, false, 7408.0),
+        ];
+        for (n, condense, mb) in measured {
+            let e = shell_estimate(n, condense);
+            let ratio = e.bytes / (mb * 1e6);
+            // Conservative, but not by more than this (n = 64 condensed: 2.2).
+            assert!(
+                (1.0..=2.3).contains(&ratio),
+                "n = {n}, condense = {condense}: {:.3} GB estimated against {mb} MB measured ({ratio:.2}×)",
+                e.bytes / 1e9
+            );
+        }
+        // The disk at n = 512 (P1⊕B3–P0, 1,158,566 unknowns at 2.5 per
+        // triangle, 2606 MB measured).
+        let disk = Scene::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/scenes/obstacle-disk.toml"),
+            &["element=p1b-p0".to_string()],
+        )
+        .unwrap();
+        let ratio = estimate(&disk, 1_158_566.0 / 2.5).bytes / 2606e6;
+        assert!((1.0..=1.5).contains(&ratio), "disk n = 512: {ratio:.2}×");
+        // n = 512 (≈ 6.03M unknowns): not within 18 GB either way.
+        assert!(shell_estimate(512.0, false).bytes > 30e9);
+        assert!(shell_estimate(512.0, true).bytes > 70e9);
+    }
+
+    #[test]
+    fn a_refusal_names_both_numbers_and_the_whole_matrix_way_out() {
+        let condensed = hypar(&["mesh.memory_limit_gb=18"]);
+        let e = estimate(&condensed, 2.0 * 256.0 * 256.0);
+        let message = check_memory(&condensed, &e, "the mesh")
+            .unwrap_err()
+            .to_string();
+        for part in [
+            "mesh.n",
+            "1.311e5 triangles",
+            "1.507e6 unknowns",
+            "~18.088 GB",
+            "limit 18.000 GB = mesh.memory_limit_gb",
+            "solver.condense = false",
+        ] {
+            assert!(message.contains(part), "{part:?} not in {message}");
+        }
+        // The whole matrix at n = 256 fits 18 GB (7.5 GB).
+        let whole = hypar(&["mesh.memory_limit_gb=18", "solver.condense=false"]);
+        let e = estimate(&whole, 2.0 * 256.0 * 256.0);
+        assert!((e.bytes - 7.536e9).abs() < 1e7, "{}", e.bytes);
+        check_memory(&whole, &e, "the mesh").unwrap();
     }
 }
