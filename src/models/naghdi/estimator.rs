@@ -80,7 +80,7 @@ impl ShellState<'_> {
         let p = self.chart.at(x);
         let zero = Vector3::zeros();
         let (mut du, mut r, mut dr) = ([zero; 2], zero, [zero; 2]);
-        let mut grad_psi = [0.0; 2];
+        let (mut grad_psi, mut u3) = ([0.0; 2], 0.0);
         for (f, field) in self.layout.fields.iter().enumerate() {
             let c = self.layout.component(self.full, f);
             let (dofs, n) = Space::new(self.mesh, field.element).element_dofs(t);
@@ -94,6 +94,9 @@ impl ShellState<'_> {
             }
             match field.role {
                 FieldRole::Displacement(i) => {
+                    if i == 2 {
+                        u3 = value;
+                    }
                     du[0][i] += grad[0];
                     du[1][i] += grad[1];
                 }
@@ -113,17 +116,6 @@ impl ShellState<'_> {
                 FieldRole::TangencyMultiplier => grad_psi = grad,
             }
         }
-        let u3 = self
-            .layout
-            .field_of(FieldRole::Displacement(2))
-            .map_or(0.0, |f| {
-                let field = self.layout.fields[f];
-                Space::new(self.mesh, field.element).evaluate(
-                    self.layout.component(self.full, f),
-                    t,
-                    l,
-                )
-            });
         let strains = generalized_strains(&p, &du, &r, &dr);
         let d = strain_weights(&p, self.material, self.rho);
         let mut sigma: StrainVector =
