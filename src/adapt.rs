@@ -13,13 +13,12 @@ use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh_sized;
 use crate::mesh::Mesh;
 use crate::output::transaction::RemoveOnSignal;
-use crate::output::{numeric_attr, parse_space_tag, write_adaptive_result, AttrValue, ResultData};
+use crate::output::{numeric_attr, write_adaptive_result, AttrValue, ResultData};
 use crate::pipeline::{
     assemble, result_data, scene_mesh, setup_model, solver_options, stage_run_outputs, warm_start,
     write_plots, RunSummary,
 };
 use crate::scene::{AdaptSpec, Scene};
-use crate::space::Space;
 use crate::transfer::prolong_dofs;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -218,14 +217,9 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
                     meshes.path(),
                     k + 1,
                 )?;
-                let u_element = data
-                    .dof_spaces
-                    .iter()
-                    .find(|(n, _)| n == "u")
-                    .and_then(|(_, tag)| parse_space_tag(tag))
-                    .map(|(e, _)| e);
-                let next_dofs = u_element.map(|e| Space::new(&next, e).n_dofs());
-                stop = stop_reason(spec, k, estimator, next_dofs);
+                // The model's own count (membrane: u; shell: every field and λ).
+                let next_dofs = setup_model(scene, &next)?.n_dofs();
+                stop = stop_reason(spec, k, estimator, Some(next_dofs));
                 mesh_seconds = meshing.elapsed().as_secs_f64();
                 stop.is_none().then_some(next)
             }

@@ -937,12 +937,6 @@ impl Scene {
                 format!("must be between 1 and 100, got {}", a.max_steps),
             ));
         }
-        if self.model != Model::Membrane {
-            return Err(self.error(
-                "adapt",
-                "the adaptive loop runs the membrane model only (the shell has no estimator yet)",
-            ));
-        }
         if self.mesh.geo.is_none() {
             return Err(self.error(
                 "adapt",

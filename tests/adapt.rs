@@ -150,19 +150,6 @@ fn bad_adapt_input_gets_clear_errors() {
             "{set}: {message}"
         );
     }
-    // Only the membrane has an estimator: a shell scene with [adapt] is refused by name.
-    let shell = common::manifest_path("pipelines/scenes/naghdi-hypar.toml");
-    let shell_text = format!(
-        "{}\n[adapt]\nmarking = \"dorfler\"\ntheta = 0.5\nmax_steps = 3\n",
-        std::fs::read_to_string(&shell).unwrap()
-    );
-    let message = Scene::from_text(&shell_text, &shell, &[])
-        .unwrap_err()
-        .to_string();
-    assert!(
-        message.contains("adapt") && message.contains("membrane"),
-        "{message}"
-    );
 }
 
 /// The two-sided case (`peers/two-sided`, issue 17) through the adaptive

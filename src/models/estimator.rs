@@ -9,6 +9,7 @@
 //! ```
 //!
 //! Δu_h is taken elementwise (the bubble and P2 have second derivatives).
+//! The shell's estimator (`naghdi::estimator`) shares [`Indicators`] and the edge loop.
 
 use crate::assembly::quad_points;
 use crate::mesh::Mesh;
@@ -35,21 +36,38 @@ pub struct Bound<'a> {
     pub sign: f64,
 }
 
-/// The four squared contributions of every triangle (each ≥ 0).
+/// The squared contributions of every triangle (each ≥ 0); `tangency` is
+/// the shell's (thesis element, docs/formulation.md §8), zero for the membrane.
 #[derive(Debug, Clone, Default)]
 pub struct Indicators {
     pub residual: Vec<f64>,
     pub jump: Vec<f64>,
     pub complementarity: Vec<f64>,
     pub penetration: Vec<f64>,
+    pub tangency: Vec<f64>,
 }
 
 impl Indicators {
+    /// Every contribution zero on `nt` triangles.
+    pub fn zeros(nt: usize) -> Self {
+        Indicators {
+            residual: vec![0.0; nt],
+            jump: vec![0.0; nt],
+            complementarity: vec![0.0; nt],
+            penetration: vec![0.0; nt],
+            tangency: vec![0.0; nt],
+        }
+    }
+
     /// η_T per triangle.
     pub fn eta(&self) -> Vec<f64> {
         (0..self.residual.len())
             .map(|t| {
-                (self.residual[t] + self.jump[t] + self.complementarity[t] + self.penetration[t])
+                (self.residual[t]
+                    + self.jump[t]
+                    + self.complementarity[t]
+                    + self.penetration[t]
+                    + self.tangency[t])
                     .sqrt()
             })
             .collect()
@@ -112,7 +130,13 @@ fn laplacian(space: &Space, c: &[f64], g: &TriangleGeometry, t: usize, l: [f64; 
 }
 
 /// ∇u_h on triangle t at barycentric point `l`.
-fn gradient(space: &Space, c: &[f64], g: &TriangleGeometry, t: usize, l: [f64; 3]) -> [f64; 2] {
+pub(crate) fn gradient(
+    space: &Space,
+    c: &[f64],
+    g: &TriangleGeometry,
+    t: usize,
+    l: [f64; 3],
+) -> [f64; 2] {
     let (dofs, n) = space.element_dofs(t);
     let b = space.element.basis(l);
     let mut grad = [0.0; 2];
@@ -125,7 +149,7 @@ fn gradient(space: &Space, c: &[f64], g: &TriangleGeometry, t: usize, l: [f64; 3
 }
 
 /// Longest edge of triangle t (h_T).
-fn diameter(mesh: &Mesh, t: usize) -> f64 {
+pub(crate) fn diameter(mesh: &Mesh, t: usize) -> f64 {
     mesh.triangle_edges[t]
         .iter()
         .map(|&e| mesh.edge_length(e))
@@ -153,12 +177,7 @@ pub fn membrane_indicators(state: &MembraneState) -> Indicators {
     // Degree 6 covers (g + λ_h + Δu_h)² for both pairs exactly; the positive
     // parts in the contact terms are resolved to quadrature accuracy only.
     let rule = TriangleRule::exact_for(6);
-    let mut ind = Indicators {
-        residual: vec![0.0; nt],
-        jump: vec![0.0; nt],
-        complementarity: vec![0.0; nt],
-        penetration: vec![0.0; nt],
-    };
+    let mut ind = Indicators::zeros(nt);
     for t in 0..nt {
         let g = TriangleGeometry::new(mesh, t);
         let h = diameter(mesh, t);
@@ -184,11 +203,7 @@ pub fn membrane_indicators(state: &MembraneState) -> Indicators {
                 ind.complementarity[t] += p.weight * lambda.max(0.0) * gap.max(0.0);
                 if gap < 0.0 {
                     // ∇ψ by central differences: ψ is data, not an FE function.
-                    let d = 1e-6;
-                    let dpsi = [
-                        (psi([p.x[0] + d, p.x[1]]) - psi([p.x[0] - d, p.x[1]])) / (2.0 * d),
-                        (psi([p.x[0], p.x[1] + d]) - psi([p.x[0], p.x[1] - d])) / (2.0 * d),
-                    ];
+                    let dpsi = central_gradient(psi, p.x, 1e-6);
                     let du = gradient(space, state.u, &g, t, p.lambda);
                     ind.penetration[t] +=
                         p.weight * ((dpsi[0] - du[0]).powi(2) + (dpsi[1] - du[1]).powi(2));
@@ -197,7 +212,42 @@ pub fn membrane_indicators(state: &MembraneState) -> Indicators {
         }
     }
     // ∇u_h is quadratic (P1⊕B3) or linear (P2) along an edge: degree 4 is exact for the jump².
-    let segment = SegmentRule::exact_for(4);
+    add_edge_jumps(
+        mesh,
+        &SegmentRule::exact_for(4),
+        &mut ind.jump,
+        |(t1, l1), (t2, l2), normal| {
+            let d1 = gradient(space, state.u, &TriangleGeometry::new(mesh, t1), t1, l1);
+            let d2 = gradient(space, state.u, &TriangleGeometry::new(mesh, t2), t2, l2);
+            [(d1[0] - d2[0]) * normal[0] + (d1[1] - d2[1]) * normal[1]]
+        },
+    );
+    ind
+}
+
+/// ∇f at x by central differences with step d (data, or an FE function's
+/// polynomial on one triangle continued past its edges).
+pub(crate) fn central_gradient<T, F: Fn([f64; 2]) -> T>(f: F, x: [f64; 2], d: f64) -> [T; 2]
+where
+    T: std::ops::Sub<Output = T> + std::ops::Div<f64, Output = T>,
+{
+    [
+        (f([x[0] + d, x[1]]) - f([x[0] - d, x[1]])) / (2.0 * d),
+        (f([x[0], x[1] + d]) - f([x[0], x[1] - d])) / (2.0 * d),
+    ]
+}
+
+/// The edge terms ½ Σ_{E ⊂ ∂T interior} h_E ‖[·]‖²_E of every triangle, added
+/// to `out`: `jump((t1, l1), (t2, l2), n)` is the jump (its components) at one point
+/// of an interior edge, given as barycentric coordinates in both triangles
+/// beside it, with n the unit normal out of t1. Each edge's share is split
+/// half and half between its triangles.
+pub(crate) fn add_edge_jumps<J: IntoIterator<Item = f64>>(
+    mesh: &Mesh,
+    segment: &SegmentRule,
+    out: &mut [f64],
+    mut jump: impl FnMut((usize, [f64; 3]), (usize, [f64; 3]), [f64; 2]) -> J,
+) {
     for (e, sides) in mesh.edge_triangles().iter().enumerate() {
         let [Some(t1), Some(t2)] = *sides else {
             continue;
@@ -206,22 +256,20 @@ pub fn membrane_indicators(state: &MembraneState) -> Indicators {
         let (pa, pb) = (mesh.vertices[a], mesh.vertices[b]);
         let len = mesh.edge_length(e);
         let normal = [(pb[1] - pa[1]) / len, (pa[0] - pb[0]) / len];
-        let (g1, g2) = (
-            TriangleGeometry::new(mesh, t1),
-            TriangleGeometry::new(mesh, t2),
-        );
-        let mut jump2 = 0.0;
+        let mut sum = 0.0;
         for (&s, &w) in segment.points.iter().zip(&segment.weights) {
-            let d1 = gradient(space, state.u, &g1, t1, on_edge(mesh, t1, [a, b], s));
-            let d2 = gradient(space, state.u, &g2, t2, on_edge(mesh, t2, [a, b], s));
-            let j = (d1[0] - d2[0]) * normal[0] + (d1[1] - d2[1]) * normal[1];
-            jump2 += w * len * j * j;
+            let sides = (
+                (t1, on_edge(mesh, t1, [a, b], s)),
+                (t2, on_edge(mesh, t2, [a, b], s)),
+            );
+            for j in jump(sides.0, sides.1, normal) {
+                sum += w * len * j * j;
+            }
         }
-        // h_E ‖[∂_n u_h]‖²_E, half to each side.
-        ind.jump[t1] += 0.5 * len * jump2;
-        ind.jump[t2] += 0.5 * len * jump2;
+        // h_E ‖[·]‖²_E, half to each side.
+        out[t1] += 0.5 * len * sum;
+        out[t2] += 0.5 * len * sum;
     }
-    ind
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@
 //!   r3 = 0 and is imposed by eliminating r3; ψ and the ρ term (which vanishes
 //!   on r3 = 0) disappear and K is symmetric positive definite (Cholesky).
 
+use super::estimator::{shell_indicators, ShellContact, ShellState};
 use super::forms::{
     add_edge_load, assemble_shell_layout, balanced_tangency_scale, constraint_factor, fix_fields,
     nodal_plane_constraint, obstacle_at_vertices, plane_constraint, restrict_shell,
@@ -716,6 +717,37 @@ impl ModelSystem for NaghdiSystem<'_> {
                 .for_each(|v| *v /= sigma);
         }
         Ok(self.numbering.restrict(&full))
+    }
+
+    /// The residual estimator of docs/formulation.md §8 (`naghdi::estimator`).
+    fn estimator(&self, _problem: &ContactProblem, report: &SolveReport) -> Option<Vec<f64>> {
+        let full = self.full_coefficients(&report.x);
+        let obstacle = self.height.as_ref().map(|height| {
+            let eps = self.material.thickness;
+            move |x: [f64; 2]| {
+                let p = self.chart.at(x);
+                obstacle_function(&p, eps) + height.eval([p.phi.x, p.phi.y])
+            }
+        });
+        let contact = obstacle.as_ref().map(|obstacle| ShellContact {
+            multiplier: (
+                Space::new(self.mesh, self.layout.kind.multiplier_element()),
+                &report.lambda[..],
+            ),
+            obstacle,
+        });
+        let state = ShellState {
+            mesh: self.mesh,
+            layout: &self.layout,
+            full: &full,
+            chart: &self.chart,
+            material: &self.material,
+            rho: self.rho,
+            load: &self.body_force,
+            tangent_tests: self.layout.psi().is_none() || self.plate_reduction,
+            contact,
+        };
+        Some(shell_indicators(&state).eta())
     }
 
     /// The constraint plot (thesis Fig. 5.6) is the shell's own.
