@@ -341,6 +341,7 @@ pub fn solver_options(
             thesis_tol: solver.thesis_tol,
             dual_norm: solver.dual_norm,
             show_progress,
+            initial_lambda: start.map(|s| s.lambda),
         }),
     }
 }
