@@ -6,7 +6,7 @@
 //   n > 0  : structured: each of the three unit squares [-1,0]x[0,1],
 //            [-1,0]x[-1,0], [0,1]x[0,1] is an n x n grid of cells cut along
 //            one diagonal: 3(n+1)^2 - 2(n+1) vertices, 6 n^2 triangles, h = Sqrt(2)/n.
-//   n <= 0 : unstructured (Frontal-Delaunay), target size h.
+//   n <= 0 : unstructured (Delaunay), target size h.
 //
 // Physical groups: Curve "boundary" (tag 1) = the whole boundary,
 //                  Surface "domain" (tag 2).
@@ -32,7 +32,8 @@ Else
   lc = h;
 EndIf
 
-Mesh.Algorithm = 6;              // Frontal-Delaunay (used when n <= 0)
+Mesh.Algorithm = 5;              // Delaunay (used when n <= 0): Frontal-Delaunay made
+                                 // a flat triangle at the corner under strong grading
 Mesh.RandomSeed = 1;             // reproducible output
 Mesh.MaxNumThreads1D = 1;
 Mesh.MaxNumThreads2D = 1;

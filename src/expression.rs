@@ -510,7 +510,8 @@ fn compile(
                 if call_depths.last() != Some(&depth) {
                     return Err((
                         *at,
-                        "a comma outside min(a, b), max(a, b), atan2(y, x) or if(cond, a, b)".into(),
+                        "a comma outside min(a, b), max(a, b), atan2(y, x) or if(cond, a, b)"
+                            .into(),
                     ));
                 }
                 exmex_text.push(',');
@@ -574,7 +575,10 @@ mod tests {
             ),
             ("sin(x)^2 + cos(x)^2", 1.0),
             ("min(x, y) + max(x, 2*y)", y + x),
-            ("atan2(y, x) + atan2(1, -1)", y.atan2(x) + 0.75 * std::f64::consts::PI),
+            (
+                "atan2(y, x) + atan2(1, -1)",
+                y.atan2(x) + 0.75 * std::f64::consts::PI,
+            ),
             ("if(x < 0.5, 1, 2) + if(y >= 0, 10, 20)", 21.0),
             ("if(r <= 1, sqrt(1 - r^2), 0)", (1.0 - r * r).sqrt()),
             ("(x > 0) * 3", 3.0),
@@ -594,7 +598,13 @@ mod tests {
     fn atan2_is_the_angle_in_every_quadrant() {
         // atan2(y, x) is a two-argument call: exmex must not read it as tan.
         let e = Expression::parse("atan2(y, x)").unwrap();
-        for (x, y) in [(1.0, 0.0), (1.0, 1.0), (-1.0, 1.0), (-1.0, -1e-9), (0.0, -2.0)] {
+        for (x, y) in [
+            (1.0, 0.0),
+            (1.0, 1.0),
+            (-1.0, 1.0),
+            (-1.0, -1e-9),
+            (0.0, -2.0),
+        ] {
             assert_eq!(e.eval([x, y]), f64::atan2(y, x), "({x}, {y})");
         }
         assert_eq!(e.eval([-1.0, 0.0]), std::f64::consts::PI);

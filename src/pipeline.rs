@@ -341,7 +341,9 @@ pub fn solver_options(
             thesis_tol: solver.thesis_tol,
             dual_norm: solver.dual_norm,
             show_progress,
-            initial_lambda: start.map(|s| s.lambda),
+            // Cold: a carried λ costs Uzawa iterations (its mesh-scale error
+            // at the free boundary is the slowest mode; §8, measured).
+            initial_lambda: None,
         }),
     }
 }
