@@ -1264,7 +1264,11 @@ fn adaptive_curves(
         curves.push((format!("{pair} uniform"), uniform));
         name = scene.name;
     }
-    let _ = writeln!(md, "\n## {name}: adaptive vs uniform (H¹ error of u)\n");
+    let _ = writeln!(
+        md,
+        "\n## {name}: adaptive vs uniform (H¹ error of u)\n\nTime here: the whole run's wall time (meshing, assembly, solve; adaptive: every step so far, estimate, remeshing and transfer included). Uniform: `mesh.n` = {:?}.\n",
+        crate::adapt::UNIFORM_LEVELS
+    );
     type Pick = fn(&CurvePoint) -> (f64, f64);
     let axes: [(&str, &str, Pick); 2] = [
         ("dofs", "dofs", |p| (p.0, p.1)),
