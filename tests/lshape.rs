@@ -6,9 +6,9 @@
 
 mod common;
 
-use common::{field, solve_scene, text};
+use common::{assert_effectivity_per_step, solve_scene, text};
 use obstacle_fem::mesh::Mesh;
-use obstacle_fem::output::{numeric_attr, read_steps, ResultData, ResultFile};
+use obstacle_fem::output::{read_steps, ResultData};
 use obstacle_fem::pipeline::{
     assemble, result_data, scene_mesh, setup_model, solver_options, warm_start,
 };
@@ -19,10 +19,6 @@ use std::path::{Path, PathBuf};
 
 fn scene_file(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("pipelines/scenes/{name}.toml"))
-}
-
-fn attr(step: &ResultFile, name: &str) -> f64 {
-    numeric_attr(&step.data.root_attrs, name).unwrap_or_else(|| panic!("no attribute {name}"))
 }
 
 /// On a grid of points of Ω (off the corner): u ≥ ψ, λ ≥ 0, λ (u − ψ) = 0,
@@ -127,22 +123,7 @@ fn estimator_is_reliable_and_grades_the_mesh_toward_the_corner() {
         assert!(o.status.success(), "{}", text(&o));
         let steps = read_steps(&out).unwrap();
         assert!(steps.len() >= 4, "{element}: {} steps", steps.len());
-        println!("{element}: step, dofs, η, H¹ error, η / error");
-        for (k, step) in steps.iter().enumerate() {
-            let (eta, error) = (attr(step, "estimator"), attr(step, "error_h1_u"));
-            let effectivity = eta / error;
-            println!(
-                "  {k}  {}  {eta:.4e}  {error:.4e}  {effectivity:.2}",
-                attr(step, "n_dofs")
-            );
-            assert!(
-                (1.0..=10.0).contains(&effectivity),
-                "{element} step {k}: effectivity {effectivity}"
-            );
-            assert!(field(step, "estimator")
-                .iter()
-                .all(|&e| e > 0.0 && e.is_finite()));
-        }
+        assert_effectivity_per_step(element, &steps);
         let last = steps.last().unwrap();
         let longest = |t: &[usize; 3]| {
             (0..3)
