@@ -180,12 +180,14 @@ threads-timings: build
 #   make study   work–precision: error against time, report in build/study/
 BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 
-# Issue 14: the adaptive loop on the disk beside uniform n = 8…64, both pairs
+# Issue 14: the adaptive loop on the disk and the L-shape beside uniform n = 8…64, both pairs
 # (build/adapt/*.md tables, *.dofs.png and *.time.png curves).
 .PHONY: adapt
 adapt: build
 	$(BIN) adapt pipelines/scenes/obstacle-disk-adapt.toml --out-dir $(BUILD)/adapt
 	$(BIN) adapt pipelines/scenes/obstacle-disk-adapt.toml --set 'element="p2-p1"' --out-dir $(BUILD)/adapt
+	$(BIN) adapt pipelines/scenes/lshape-adapt.toml --out-dir $(BUILD)/adapt
+	$(BIN) adapt pipelines/scenes/lshape-adapt.toml --set 'element="p2-p1"' --out-dir $(BUILD)/adapt
 
 .PHONY: bench bench-1000 scale study
 
@@ -205,7 +207,9 @@ study: build
 	  --exact pipelines/studies/work-precision-disk-uzawa.toml \
 	  --reference pipelines/studies/work-precision-shell-reference.toml \
 	  --against pipelines/studies/work-precision-shell.toml \
-	  --against pipelines/studies/work-precision-shell-iterative.toml
+	  --against pipelines/studies/work-precision-shell-iterative.toml \
+	  --adapt pipelines/scenes/obstacle-disk-adapt.toml \
+	  --adapt pipelines/scenes/lshape-adapt.toml
 
 # Issue 12: the locking-free shell element p2b-psri against the published
 # shell benchmarks, beside the thesis' p1b-p0 (docs/shell-benchmarks.md):

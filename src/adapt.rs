@@ -298,17 +298,18 @@ pub fn rows_of(steps: &[crate::output::ResultFile]) -> Vec<StepRow> {
 /// The uniform levels `make adapt` compares against (structured disk meshes, `mesh.n`).
 pub const UNIFORM_LEVELS: [i64; 4] = [8, 16, 32, 64];
 
-/// One run of a comparison curve: dofs, H¹ error and wall time.
-type CurvePoint = (f64, f64, f64);
+/// The fitted rates leave out the coarse, pre-asymptotic meshes.
+const RATE_MIN_DOFS: f64 = 1000.0;
 
-/// `obstacle adapt SCENE`: the scene's adaptive loop beside the uniform
-/// levels [`UNIFORM_LEVELS`], both with errors against the exact solution.
-/// Writes into `out_dir`: `NAME-ELEMENT.h5` (every step), the uniform runs
-/// `NAME-ELEMENT-uniform-N.h5`, `NAME-ELEMENT.md` (both tables, and dofs and
-/// seconds to the finest uniform error) and the curves `NAME-ELEMENT.dofs.png`
-/// (error against dofs) and `NAME-ELEMENT.time.png` (against wall time,
-/// meshing and transfer included). Returns the markdown text.
-pub fn compare_command(scene: &Scene, out_dir: &Path) -> Result<String> {
+/// One run of a comparison curve: dofs, H¹ error and wall time.
+pub type CurvePoint = (f64, f64, f64);
+
+/// The scene's adaptive loop and its uniform levels [`UNIFORM_LEVELS`], both
+/// with errors against the exact solution: result files `LABEL.h5` (every
+/// step) and `LABEL-uniform-N.h5` in `out_dir`, LABEL = `NAME-ELEMENT`.
+/// Returns the adaptive steps and the uniform points (time: the whole run,
+/// meshing included; the adaptive one with remeshing and transfer).
+pub fn compare_runs(scene: &Scene, out_dir: &Path) -> Result<(Vec<StepRow>, Vec<CurvePoint>)> {
     if scene.adapt.is_none() || !scene.output.errors {
         return Err(Error::Scene {
             file: scene.source.clone(),
@@ -316,7 +317,7 @@ pub fn compare_command(scene: &Scene, out_dir: &Path) -> Result<String> {
             reason: "`obstacle adapt` compares an [adapt] scene with `output.errors = true` against uniform meshes".into(),
         });
     }
-    let label = format!("{}-{}", scene.name, scene.element.name());
+    let label = compare_label(scene);
     let (_, rows) = run_adaptive(scene, &out_dir.join(format!("{label}.h5")))?;
     let mut uniform: Vec<CurvePoint> = Vec::new();
     for n in UNIFORM_LEVELS {
@@ -333,10 +334,30 @@ pub fn compare_command(scene: &Scene, out_dir: &Path) -> Result<String> {
         let error = s.errors.map_or(f64::NAN, |e| e.h1);
         uniform.push((s.n_dofs as f64, error, s.wall_seconds));
     }
-    let adaptive: Vec<CurvePoint> = rows
-        .iter()
+    Ok((rows, uniform))
+}
+
+/// `NAME-ELEMENT`: the file names of one comparison.
+fn compare_label(scene: &Scene) -> String {
+    format!("{}-{}", scene.name, scene.element.name())
+}
+
+/// The adaptive steps as curve points (dofs, H¹ error, seconds).
+pub fn adaptive_points(rows: &[StepRow]) -> Vec<CurvePoint> {
+    rows.iter()
         .map(|r| (r.n_dofs as f64, r.error_h1.unwrap_or(f64::NAN), r.seconds))
-        .collect();
+        .collect()
+}
+
+/// `obstacle adapt SCENE`: [`compare_runs`], then in `out_dir`
+/// `NAME-ELEMENT.md` (both tables, and dofs and seconds to the finest
+/// uniform error) and the curves `NAME-ELEMENT.dofs.png` (error against
+/// dofs) and `NAME-ELEMENT.time.png` (against wall time, meshing and
+/// transfer included). Returns the markdown text.
+pub fn compare_command(scene: &Scene, out_dir: &Path) -> Result<String> {
+    let (rows, uniform) = compare_runs(scene, out_dir)?;
+    let label = compare_label(scene);
+    let adaptive = adaptive_points(&rows);
     let title = format!(
         "{}: adaptive vs uniform ({})",
         scene.name,
@@ -370,7 +391,7 @@ pub fn compare_command(scene: &Scene, out_dir: &Path) -> Result<String> {
 }
 
 /// The comparison's markdown: both tables and the cost of the finest uniform error.
-fn compare_markdown(label: &str, rows: &[StepRow], uniform: &[CurvePoint]) -> String {
+pub fn compare_markdown(label: &str, rows: &[StepRow], uniform: &[CurvePoint]) -> String {
     let mut s = format!(
         "## {label}: adaptive\n\n{}\n## {label}: uniform\n\n",
         steps_table(rows)
@@ -387,6 +408,20 @@ fn compare_markdown(label: &str, rows: &[StepRow], uniform: &[CurvePoint]) -> St
         .iter()
         .enumerate()
         .find(|(_, r)| r.error_h1.is_some_and(|e| e <= error));
+    let rate = |pts: &[CurvePoint]| {
+        let asymptotic: Vec<(f64, f64)> = pts
+            .iter()
+            .filter(|p| p.0 >= RATE_MIN_DOFS)
+            .map(|p| (p.0, p.1))
+            .collect();
+        crate::plot::loglog_slope(&asymptotic).map_or("–".into(), |r| format!("{r:.2}"))
+    };
+    let _ = writeln!(
+        s,
+        "\nFitted rates in dofs N (H¹ error ~ N^s, least squares over the points with N ≥ {RATE_MIN_DOFS}): uniform s = {}, adaptive s = {}.",
+        rate(uniform),
+        rate(&adaptive_points(rows))
+    );
     let _ = writeln!(s);
     match reached {
         Some((k, r)) => {

@@ -31,6 +31,7 @@
 //!   reference run on a finer mesh via [`crate::transfer`]) against the
 //!   solver's wall time, and writes log–log plots and a Markdown report.
 
+use crate::adapt::{adaptive_points, compare_markdown, compare_runs, CurvePoint};
 use crate::error::{Error, Result};
 use crate::guards::peak_rss_kb;
 use crate::linalg::{ReusableFactorization, Solves};
@@ -1047,6 +1048,7 @@ fn study_points(path: &Path, out_dir: &Path, errors: &mut ErrorsOf) -> Result<Ve
 pub fn work_precision(
     exact: &[PathBuf],
     against: &[PathBuf],
+    adapt: &[PathBuf],
     reference: Option<&Path>,
     fields: &[String],
     out_dir: &Path,
@@ -1057,6 +1059,7 @@ pub fn work_precision(
     let inputs: Vec<PathBuf> = exact
         .iter()
         .chain(against)
+        .chain(adapt)
         .cloned()
         .chain(reference.map(Path::to_path_buf))
         .collect();
@@ -1206,11 +1209,92 @@ pub fn work_precision(
         }
         md.push_str(&balance(pts, &measures));
     }
+    for scene in adapt {
+        adaptive_curves(scene, &runs, out_dir, &outputs, &mut md, &mut csv)?;
+    }
     write(&outputs.stage(&out_dir.join("report.md"))?, &md)?;
     write(&outputs.stage(&out_dir.join("work-precision.csv"))?, &csv)?;
     outputs.commit()?;
     println!("{md}");
     println!("report: {}", out_dir.join("report.md").display());
+    Ok(())
+}
+
+/// The membrane pairs `make study` runs each `[adapt]` scene with.
+const ADAPT_PAIRS: [&str; 2] = ["p1b-p0", "p2-p1"];
+
+/// `make study`'s adaptive part for one `[adapt]` scene: both pairs, the
+/// adaptive loop beside the uniform levels ([`crate::adapt::compare_runs`]);
+/// one figure per case and axis (H¹ error against dofs, against the whole
+/// wall time: meshing, remeshing and transfer included), the tables and the
+/// time to the finest uniform error.
+fn adaptive_curves(
+    scene_path: &Path,
+    runs: &Path,
+    out_dir: &Path,
+    outputs: &OutputTransaction,
+    md: &mut String,
+    csv: &mut String,
+) -> Result<()> {
+    let mut name = String::new();
+    let mut curves: Vec<(String, Vec<CurvePoint>)> = Vec::new();
+    let mut tables = String::new();
+    for pair in ADAPT_PAIRS {
+        let overrides = [format!("element=\"{pair}\""), "output.plots=[]".to_string()];
+        let scene = Scene::load(scene_path, &overrides)?;
+        eprintln!("adaptive vs uniform: {} ({pair})", scene.name);
+        let (rows, uniform) = compare_runs(&scene, runs)?;
+        tables.push_str(&compare_markdown(
+            &format!("{}-{pair}", scene.name),
+            &rows,
+            &uniform,
+        ));
+        let adaptive = adaptive_points(&rows);
+        for (kind, pts) in [("adaptive", &adaptive), ("uniform", &uniform)] {
+            // The level column holds the dofs.
+            for (dofs, error, seconds) in pts.iter() {
+                let _ = writeln!(
+                    csv,
+                    "adapt-{},{pair},{kind},{dofs},,{seconds:e},,H1 u,{error:e}",
+                    scene.name
+                );
+            }
+        }
+        curves.push((format!("{pair} adaptive"), adaptive));
+        curves.push((format!("{pair} uniform"), uniform));
+        name = scene.name;
+    }
+    let _ = writeln!(
+        md,
+        "\n## {name}: adaptive vs uniform (H¹ error of u)\n\nTime here: the whole run's wall time (meshing, assembly, solve; adaptive: every step so far, estimate, remeshing and transfer included). Uniform: `mesh.n` = {:?}.\n",
+        crate::adapt::UNIFORM_LEVELS
+    );
+    type Pick = fn(&CurvePoint) -> (f64, f64);
+    let axes: [(&str, &str, Pick); 2] = [
+        ("dofs", "dofs", |p| (p.0, p.1)),
+        (
+            "time",
+            "wall seconds (meshing, remeshing and transfer included)",
+            |p| (p.2, p.1),
+        ),
+    ];
+    for (axis, x_label, pick) in axes {
+        let series: Vec<(String, Vec<(f64, f64)>)> = curves
+            .iter()
+            .map(|(label, pts)| (label.clone(), pts.iter().map(pick).collect()))
+            .collect();
+        let file = format!("adapt-{name}.{axis}.png");
+        plot::plot_convergence(
+            &outputs.stage(&out_dir.join(&file))?,
+            &series,
+            x_label,
+            "H¹ error",
+            &format!("{name}: adaptive vs uniform"),
+            if axis == "dofs" { &[-0.5, -1.0] } else { &[] },
+        )?;
+        let _ = writeln!(md, "![{name} against {axis}]({file})\n");
+    }
+    md.push_str(&tables);
     Ok(())
 }
 

@@ -2,7 +2,8 @@
 //! `x`, `y` and `r` = √(x² + y²) (README, "Expressions").
 //!
 //! The language: numbers (`1.5`, `2e-3`), `+ - * / ^`, parentheses, `pi`,
-//! `sqrt exp ln sin cos tan abs`, `min(a, b)`, `max(a, b)`, comparisons
+//! `sqrt exp ln sin cos tan abs`, `min(a, b)`, `max(a, b)`, `atan2(y, x)` (the
+//! angle of the point (x, y) in (−π, π], as in C and FreeFEM), comparisons
 //! `< <= > >=` (1 or 0) and `if(cond, a, b)` (a where cond ≠ 0, else b).
 //!
 //! Compiled once, evaluated at every quadrature point: the arithmetic is
@@ -38,7 +39,7 @@ const UNARY: [(&str, Function); 7] = [
     ("abs", f64::abs),
 ];
 const KNOWN: &str =
-    "variables x, y, r; constant pi; functions sqrt exp ln sin cos tan abs min max if";
+    "variables x, y, r; constant pi; functions sqrt exp ln sin cos tan abs min max atan2 if";
 
 fn comparison(prio: i64, apply: fn(f64, f64) -> f64) -> BinOp<f64> {
     BinOp {
@@ -67,6 +68,7 @@ impl MakeOperators<f64> for SceneOps {
             Operator::make_bin_unary("-", bin(|a, b| a - b, 1, false), |a| -a),
             Operator::make_bin("min", bin(f64::min, 0, false)),
             Operator::make_bin("max", bin(f64::max, 0, false)),
+            Operator::make_bin("atan2", bin(f64::atan2, 0, false)),
             Operator::make_bin("<=", comparison(-1, |a, b| f64::from(a <= b))),
             Operator::make_bin(">=", comparison(-1, |a, b| f64::from(a >= b))),
             Operator::make_bin("<", comparison(-1, |a, b| f64::from(a < b))),
@@ -389,7 +391,7 @@ fn compile(
     let mut freefem = String::new();
     let mut branches: Vec<Node> = Vec::new();
     let mut depth = 0i64;
-    // A comma is legal inside min(...) and max(...) only: the depths of their parentheses.
+    // A comma is legal inside min(...), max(...) and atan2(...) only: the depths of their parentheses.
     let mut call_depths: Vec<i64> = Vec::new();
     let mut k = a;
     while k < b {
@@ -438,7 +440,7 @@ fn compile(
                         k = close + 1;
                         continue;
                     }
-                    "min" | "max" if followed_by_call => {
+                    "min" | "max" | "atan2" if followed_by_call => {
                         exmex_text.push_str(name);
                         freefem.push_str(name);
                         call_depths.push(depth + 1);
@@ -451,7 +453,7 @@ fn compile(
                         return Err((*at, format!("`{name}` is not a function")));
                     }
                     _ if followed_by_call
-                        || matches!(name.as_str(), "if" | "min" | "max")
+                        || matches!(name.as_str(), "if" | "min" | "max" | "atan2")
                         || UNARY.iter().any(|(n, _)| n == name) =>
                     {
                         let reason = if followed_by_call {
@@ -508,7 +510,8 @@ fn compile(
                 if call_depths.last() != Some(&depth) {
                     return Err((
                         *at,
-                        "a comma outside min(a, b), max(a, b) or if(cond, a, b)".into(),
+                        "a comma outside min(a, b), max(a, b), atan2(y, x) or if(cond, a, b)"
+                            .into(),
                     ));
                 }
                 exmex_text.push(',');
@@ -558,7 +561,7 @@ mod tests {
     fn evaluates_the_language() {
         let (x, y): (f64, f64) = (0.3, -0.7);
         let r = x.hypot(y);
-        let cases: [(&str, f64); 14] = [
+        let cases: [(&str, f64); 15] = [
             ("1 + 2*3", 7.0),
             ("2e-3*x", 2e-3 * x),
             ("-x^2", -(x * x)),
@@ -572,6 +575,10 @@ mod tests {
             ),
             ("sin(x)^2 + cos(x)^2", 1.0),
             ("min(x, y) + max(x, 2*y)", y + x),
+            (
+                "atan2(y, x) + atan2(1, -1)",
+                y.atan2(x) + 0.75 * std::f64::consts::PI,
+            ),
             ("if(x < 0.5, 1, 2) + if(y >= 0, 10, 20)", 21.0),
             ("if(r <= 1, sqrt(1 - r^2), 0)", (1.0 - r * r).sqrt()),
             ("(x > 0) * 3", 3.0),
@@ -585,6 +592,25 @@ mod tests {
         assert_eq!(at("if(r < 1, ln(1 - r), 0)", 3.0, 0.0), 0.0);
         assert_eq!(Expression::parse(" 2.5 ").unwrap().as_constant(), Some(2.5));
         assert_eq!(Expression::parse("-2*3").unwrap().as_constant(), Some(-6.0));
+    }
+
+    #[test]
+    fn atan2_is_the_angle_in_every_quadrant() {
+        // atan2(y, x) is a two-argument call: exmex must not read it as tan.
+        let e = Expression::parse("atan2(y, x)").unwrap();
+        for (x, y) in [
+            (1.0, 0.0),
+            (1.0, 1.0),
+            (-1.0, 1.0),
+            (-1.0, -1e-9),
+            (0.0, -2.0),
+        ] {
+            assert_eq!(e.eval([x, y]), f64::atan2(y, x), "({x}, {y})");
+        }
+        assert_eq!(e.eval([-1.0, 0.0]), std::f64::consts::PI);
+        assert_eq!(e.freefem(), "(atan2(y,x))");
+        let m = Expression::parse("atan2(y)").unwrap_err();
+        assert!(m.contains("character 1"), "{m}");
     }
 
     #[test]

@@ -186,6 +186,10 @@ enum BenchCommand {
         /// Studies measured against `--reference` (shell).
         #[arg(long = "against")]
         against: Vec<PathBuf>,
+        /// `[adapt]` scenes (membrane, exact solution): the adaptive loop beside
+        /// uniform meshes, both pairs, H¹ error against dofs and wall time.
+        #[arg(long = "adapt")]
+        adapt: Vec<PathBuf>,
         /// A study with one run: the reference solution of the `--against` studies.
         #[arg(long)]
         reference: Option<PathBuf>,
@@ -225,10 +229,18 @@ fn bench(command: BenchCommand) -> Result<()> {
         BenchCommand::Study {
             exact,
             against,
+            adapt,
             reference,
             fields,
             out_dir,
-        } => work_precision(&exact, &against, reference.as_deref(), &fields, &out_dir),
+        } => work_precision(
+            &exact,
+            &against,
+            &adapt,
+            reference.as_deref(),
+            &fields,
+            &out_dir,
+        ),
     }
 }
 

@@ -341,6 +341,9 @@ pub fn solver_options(
             thesis_tol: solver.thesis_tol,
             dual_norm: solver.dual_norm,
             show_progress,
+            // Cold: a carried λ costs Uzawa iterations (its mesh-scale error
+            // at the free boundary is the slowest mode; §8, measured).
+            initial_lambda: None,
         }),
     }
 }

@@ -130,6 +130,7 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
                 thesis_tol: 0.0,
                 dual_norm: DualNorm::L2,
                 show_progress: false,
+                initial_lambda: None,
             });
             let (with, without) = (
                 solve(&condensed, &options, &[]).unwrap(),

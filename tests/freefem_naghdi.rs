@@ -135,6 +135,7 @@ fn rust_run(mesh: &Mesh, uzawa_form: Option<(StepForm, usize)>) -> Run {
                 thesis_tol: 0.0,
                 dual_norm: DualNorm::L2,
                 show_progress: false,
+                initial_lambda: None,
             };
             let r = uzawa(&problem, &factorization, factor, &options, &[])
                 .unwrap_or_else(|e| panic!("{e}"));

@@ -200,6 +200,8 @@ fn meshing_is_reproducible() {
         ("disk.geo", vec![("n", 0.0), ("h", 0.1)]),
         ("diamond.geo", vec![("n", 0.0), ("h", 10.0)]),
         ("diamond.geo", vec![("n", 16.0)]),
+        ("lshape.geo", vec![("n", 8.0)]),
+        ("lshape.geo", vec![("n", 0.0), ("h", 0.1)]),
     ] {
         let (_d1, f1, _) = mesh(name, &p);
         let (_d2, f2, _) = mesh(name, &p);

@@ -647,6 +647,7 @@ fn uzawa_options(step: UzawaStep) -> SolverOptions {
         thesis_tol: 0.0,
         dual_norm: DualNorm::L2,
         show_progress: false,
+        initial_lambda: None,
     })
 }
 

@@ -142,6 +142,12 @@ impl Mesh {
             .map(|e| self.edge_length(e))
             .fold(0.0, f64::max)
     }
+    /// Shortest edge (the smallest element of a graded mesh).
+    pub fn h_min(&self) -> f64 {
+        (0..self.n_edges())
+            .map(|e| self.edge_length(e))
+            .fold(f64::INFINITY, f64::min)
+    }
     /// Tag of a physical name, if the file named it.
     pub fn tag_by_name(&self, name: &str) -> Option<i32> {
         self.physical_names

@@ -32,7 +32,9 @@ use super::measures::kkt_measures;
 use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
 use super::uzawa::solve_unconstrained;
-use super::{factorize_system, named, ContactProblem, ReportBuilder, SolveReport};
+use super::{
+    factorize_system, initial_multiplier, named, ContactProblem, ReportBuilder, SolveReport,
+};
 use crate::error::{Error, Result};
 use crate::linalg::Solves;
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
@@ -131,17 +133,7 @@ pub fn dual_accelerated(
         factorization.solve_in_place(&mut x);
         x
     };
-    let mut lambda: Vec<f64> = match &options.initial_lambda {
-        Some(l) if l.len() != m => {
-            return Err(Error::numerical(
-                STAGE,
-                "initial_lambda",
-                format!("length {}, expected {m}", l.len()),
-            ))
-        }
-        Some(l) => l.iter().map(|v| v.max(0.0)).collect(),
-        None => vec![0.0; m],
-    };
+    let mut lambda = initial_multiplier(STAGE, options.initial_lambda.as_deref(), m)?;
     let mut monitor = Monitor::new(STAGE, "dual step ‖λ^k − λ^{k−1}‖")
         .with_stagnation_window(options.stall_window);
     let mut x = primal_solve(&lambda);

@@ -303,6 +303,24 @@ impl ReportBuilder {
     }
 }
 
+/// The first multiplier of a dual method: the warm start's λ (projected on
+/// λ ≥ 0) or zero; a warm start of the wrong length is refused.
+pub(crate) fn initial_multiplier(
+    stage: &str,
+    initial: Option<&[f64]>,
+    m: usize,
+) -> Result<Vec<f64>> {
+    match initial {
+        Some(l) if l.len() != m => Err(crate::error::Error::numerical(
+            stage,
+            "initial_lambda",
+            format!("length {}, expected {m}", l.len()),
+        )),
+        Some(l) => Ok(l.iter().map(|v| v.max(0.0)).collect()),
+        None => Ok(vec![0.0; m]),
+    }
+}
+
 /// Named parameters of a report from (name, value) pairs.
 pub(crate) fn named(values: &[(&str, f64)]) -> Vec<(String, f64)> {
     values.iter().map(|(n, v)| (n.to_string(), *v)).collect()

@@ -13,7 +13,9 @@
 use super::measures::{dual_step_norm, kkt_measures, kkt_measures_with, Products};
 use super::monitor::{check_finite, Monitor};
 use super::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
-use super::{factorize_system, named, ContactProblem, ReportBuilder, SolveReport};
+use super::{
+    factorize_system, initial_multiplier, named, ContactProblem, ReportBuilder, SolveReport,
+};
 use crate::error::{Error, Result};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::linalg::{Factorization, Solves};
@@ -62,6 +64,8 @@ pub struct UzawaOptions {
     pub thesis_tol: f64,
     pub dual_norm: DualNorm,
     pub show_progress: bool,
+    /// λ⁰ (e.g. an adaptive step's multiplier carried to the new mesh); zero if absent.
+    pub initial_lambda: Option<Vec<f64>>,
 }
 
 /// α by `step`, and the Lanczos estimate of the spectrum of S it comes from
@@ -139,7 +143,7 @@ pub fn uzawa(
         .iterating(STAGE, options.max_iter, options.tol, options.show_progress);
     report.alpha = Some(alpha);
     report.spectrum = spectrum;
-    let mut lambda = vec![0.0; m];
+    let mut lambda = initial_multiplier(STAGE, options.initial_lambda.as_deref(), m)?;
     let mut x = vec![0.0; problem.n()];
     let mut monitor =
         Monitor::new(STAGE, "dual step ‖λ^k − λ^{k−1}‖").with_cycle_window(CYCLE_WINDOW);

@@ -368,3 +368,32 @@ pub fn set_args(pairs: &[&str]) -> Vec<String> {
         .flat_map(|p| ["--set".to_string(), p.to_string()])
         .collect()
 }
+
+/// An adaptive run's steps against its exact solution (issue 14): prints
+/// dofs, η, H¹ error and η / error per step and asserts the effectivity
+/// index within [1, 10] and every indicator η_T positive and finite.
+pub fn assert_effectivity_per_step(label: &str, steps: &[ResultFile]) {
+    let attr = |step: &ResultFile, name: &str| {
+        obstacle_fem::output::numeric_attr(&step.data.root_attrs, name)
+            .unwrap_or_else(|| panic!("no attribute {name}"))
+    };
+    println!("{label}: step, dofs, η, H¹ error, η / error");
+    for (k, step) in steps.iter().enumerate() {
+        let (eta, error) = (attr(step, "estimator"), attr(step, "error_h1_u"));
+        let effectivity = eta / error;
+        println!(
+            "  {k}  {}  {eta:.4e}  {error:.4e}  {effectivity:.2}",
+            attr(step, "n_dofs")
+        );
+        assert!(
+            (1.0..=10.0).contains(&effectivity),
+            "{label} step {k}: effectivity {effectivity}"
+        );
+        assert!(
+            field(step, "estimator")
+                .iter()
+                .all(|&e| e > 0.0 && e.is_finite()),
+            "{label} step {k}: an indicator ≤ 0"
+        );
+    }
+}
