@@ -195,6 +195,7 @@ fn threaded_factorisations_give_the_sequential_iterates() {
         thesis_tol: 0.0,
         dual_norm: DualNorm::L2,
         show_progress: false,
+        initial_lambda: None,
     });
     let run = |threads: &str, condense: &str| {
         let mut sets = overrides.to_vec();
