@@ -4,6 +4,9 @@
 //! wrong group declaration or a singular local block is an error naming the
 //! group.
 
+mod common;
+
+use common::fixed_uzawa_options;
 use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::linalg::{
     factorize_checked, factorize_checked_with, InteriorGroups, MatrixKind, Solves,
@@ -12,11 +15,9 @@ use obstacle_fem::pipeline::{assemble, scene_mesh, setup_model};
 use obstacle_fem::scene::{Scene, StepForm};
 use obstacle_fem::solvers::active_set::ActiveSetOptions;
 use obstacle_fem::solvers::dual_accelerated::DualAcceleratedOptions;
-use obstacle_fem::solvers::uzawa::{UzawaOptions, UzawaStep};
+use obstacle_fem::solvers::uzawa::UzawaStep;
 use obstacle_fem::solvers::uzawa_split::UzawaSplitOptions;
-use obstacle_fem::solvers::{
-    solve, ContactProblem, DualNorm, SolveReport, SolverOptions, StopRule,
-};
+use obstacle_fem::solvers::{solve, ContactProblem, SolveReport, SolverOptions};
 use std::path::Path;
 
 /// The three problems with interior groups: (label, scene, overrides).
@@ -121,17 +122,11 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
             groups.len()
         );
         for step_form in [StepForm::Mean, StepForm::Integral] {
-            let options = SolverOptions::Uzawa(UzawaOptions {
-                step: UzawaStep::StabilityFactor(0.5),
+            let options = SolverOptions::Uzawa(fixed_uzawa_options(
+                UzawaStep::StabilityFactor(0.5),
                 step_form,
-                max_iter: K,
-                tol: 0.0,
-                stop: StopRule::Kkt,
-                thesis_tol: 0.0,
-                dual_norm: DualNorm::L2,
-                show_progress: false,
-                initial_lambda: None,
-            });
+                K,
+            ));
             let (with, without) = (
                 solve(&condensed, &options, &[]).unwrap(),
                 solve(&plain, &options, &[]).unwrap(),
@@ -186,17 +181,11 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
 #[test]
 fn threaded_factorisations_give_the_sequential_iterates() {
     let (_, scene, overrides) = PROBLEMS[1];
-    let options = SolverOptions::Uzawa(UzawaOptions {
-        step: UzawaStep::StabilityFactor(0.5),
-        step_form: StepForm::Mean,
-        max_iter: 40,
-        tol: 0.0,
-        stop: StopRule::Kkt,
-        thesis_tol: 0.0,
-        dual_norm: DualNorm::L2,
-        show_progress: false,
-        initial_lambda: None,
-    });
+    let options = SolverOptions::Uzawa(fixed_uzawa_options(
+        UzawaStep::StabilityFactor(0.5),
+        StepForm::Mean,
+        40,
+    ));
     let run = |threads: &str, condense: &str| {
         let mut sets = overrides.to_vec();
         sets.extend([threads, condense]);

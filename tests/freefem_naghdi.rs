@@ -26,7 +26,10 @@
 
 mod common;
 
-use common::{check_success, diamond, max_abs, read_ff_mesh, read_info, read_numbers, rel_diff};
+use common::{
+    check_success, diamond, fixed_uzawa_options, max_abs, read_ff_mesh, read_info, read_numbers,
+    rel_diff,
+};
 use obstacle_fem::assembly::DofNumbering;
 use obstacle_fem::linalg::{factorize_checked, Solves};
 use obstacle_fem::mesh::Mesh;
@@ -35,8 +38,8 @@ use obstacle_fem::models::naghdi::forms::{
     ShellLayout, COMPONENT_NAMES, N_COMPONENTS, PSI,
 };
 use obstacle_fem::models::naghdi::geometry::{Chart, Material};
-use obstacle_fem::scene::{DualNorm, StepForm, StopRule};
-use obstacle_fem::solvers::uzawa::{solve_linear, uzawa, UzawaOptions, UzawaStep};
+use obstacle_fem::scene::StepForm;
+use obstacle_fem::solvers::uzawa::{solve_linear, uzawa, UzawaStep};
 use std::path::{Path, PathBuf};
 use std::process::Output;
 use std::time::Instant;
@@ -126,17 +129,7 @@ fn rust_run(mesh: &Mesh, uzawa_form: Option<(StepForm, usize)>) -> Run {
     let factor = t.elapsed().as_secs_f64();
     let report = match uzawa_form {
         Some((step_form, max_iter)) => {
-            let options = UzawaOptions {
-                step: UzawaStep::Given(ALPHA),
-                step_form,
-                max_iter,
-                tol: 0.0,
-                stop: StopRule::Kkt,
-                thesis_tol: 0.0,
-                dual_norm: DualNorm::L2,
-                show_progress: false,
-                initial_lambda: None,
-            };
+            let options = fixed_uzawa_options(UzawaStep::Given(ALPHA), step_form, max_iter);
             let r = uzawa(&problem, &factorization, factor, &options, &[])
                 .unwrap_or_else(|e| panic!("{e}"));
             assert_eq!(r.iterations, max_iter);

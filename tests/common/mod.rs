@@ -397,3 +397,23 @@ pub fn assert_effectivity_per_step(label: &str, steps: &[ResultFile]) {
         );
     }
 }
+
+/// Uzawa run for exactly `max_iter` iterations (tolerance 0, KKT stop rule,
+/// no progress, cold start): the tests that compare iterates after K steps.
+pub fn fixed_uzawa_options(
+    step: obstacle_fem::solvers::uzawa::UzawaStep,
+    step_form: obstacle_fem::scene::StepForm,
+    max_iter: usize,
+) -> obstacle_fem::solvers::uzawa::UzawaOptions {
+    obstacle_fem::solvers::uzawa::UzawaOptions {
+        step,
+        step_form,
+        max_iter,
+        tol: 0.0,
+        stop: obstacle_fem::solvers::StopRule::Kkt,
+        thesis_tol: 0.0,
+        dual_norm: obstacle_fem::solvers::DualNorm::L2,
+        show_progress: false,
+        initial_lambda: None,
+    }
+}
