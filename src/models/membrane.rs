@@ -234,11 +234,7 @@ impl ExactSolution {
             ExactSolution::Radial(e) => e.grad_u(x),
             ExactSolution::Given(e) => {
                 let h = (1e-5 * (1.0 + x[0].abs().max(x[1].abs()))).min(max_step);
-                let d = |dx: f64, dy: f64| {
-                    (e.u.eval([x[0] + dx, x[1] + dy]) - e.u.eval([x[0] - dx, x[1] - dy]))
-                        / (2.0 * h)
-                };
-                [d(h, 0.0), d(0.0, h)]
+                super::estimator::central_gradient(|p| e.u.eval(p), x, h)
             }
         }
     }
