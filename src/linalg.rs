@@ -36,7 +36,8 @@ pub fn set_threads(threads: usize) {
 /// Cholesky and LU read, is kept sequential (with faer's `rayon` feature it
 /// would default to every core).
 fn parallelism() -> Par {
-    faer::set_global_parallelism(Par::Seq);
+    static SEQUENTIAL_GLOBAL: std::sync::Once = std::sync::Once::new();
+    SEQUENTIAL_GLOBAL.call_once(|| faer::set_global_parallelism(Par::Seq));
     match THREADS.with(|t| t.get()) {
         1 => Par::Seq,
         n => Par::rayon(n),
