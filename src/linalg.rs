@@ -12,7 +12,7 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
 };
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::{FaerError, SparseColMat};
+use faer::sparse::{FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
@@ -77,6 +77,16 @@ pub enum Solves {
     Many,
 }
 
+impl Solves {
+    /// The ordering it picks for a symmetric saddle matrix, for messages.
+    fn describe(self) -> &'static str {
+        match self {
+            Solves::Few => "AMD order",
+            Solves::Many => "multipliers after their neighbours",
+        }
+    }
+}
+
 impl MatrixKind {
     /// What a matrix of this kind is, for error messages.
     pub fn describe(self) -> &'static str {
@@ -103,10 +113,12 @@ pub struct CondensedFactorization {
     plan: Arc<CondensationPlan>,
     local: LocalFactors,
     schur: Factorization,
-    /// A and ‖A‖∞ (max entry), for the refinement of each solve: the local
-    /// eliminations are not refined by S's factorisation (ρ = 1e12 shell:
-    /// residual 5e-8 unrefined).
-    matrix: SparseColMat<usize, f64>,
+    /// A (its pattern shared with the [`ReusableFactorization`] that made
+    /// it, its values copied) and ‖A‖∞ (max entry), for the refinement of
+    /// each solve: the local eliminations are not refined by S's
+    /// factorisation (ρ = 1e12 shell: residual 5e-8 unrefined).
+    pattern: Arc<SymbolicSparseColMat<usize>>,
+    values: Vec<f64>,
     norm: f64,
 }
 
@@ -125,9 +137,13 @@ impl CondensedFactorization {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         let rhs = b.to_vec();
         self.raw_solve(b, false);
-        refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| {
+        refine_to_round_off(self.matrix(), self.norm, b, &rhs, |d| {
             self.raw_solve(d, false)
         })
+    }
+
+    fn matrix(&self) -> SparseColMatRef<'_, usize, f64> {
+        SparseColMatRef::new((*self.pattern).as_ref(), &self.values)
     }
 
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
@@ -202,36 +218,71 @@ pub fn check_test_solve(
     f: &Factorization,
     what: &str,
 ) -> Result<f64> {
-    check_solve(a, f, &test_rhs(a.nrows()), what).map(|(_, rel)| rel)
+    check_solve(a, f, &test_rhs(a.nrows()), what).map(|(_, q)| q.relative)
+}
+
+/// How well a solution x of A x = b (b ≠ 0) satisfies it.
+#[derive(Debug, Clone, Copy)]
+struct SolveQuality {
+    /// ‖Ax − b‖∞/‖b‖∞.
+    relative: f64,
+    /// ‖Ax − b‖∞/(‖A‖ ‖x‖∞ + ‖b‖∞), ‖A‖ the largest entry.
+    backward: f64,
+}
+
+impl SolveQuality {
+    const EXACT: SolveQuality = SolveQuality {
+        relative: 0.0,
+        backward: 0.0,
+    };
+
+    fn of(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64]) -> Self {
+        let size = norm_inf(&residual(a, x, b));
+        SolveQuality {
+            relative: size / norm_inf(b),
+            backward: size / (norm_inf(a.val()) * norm_inf(x) + norm_inf(b)),
+        }
+    }
+
+    /// A refined LDLᵀ (or condensed) solve is kept when its relative
+    /// residual is below [`LDLT_ACCEPTED`].
+    fn ldlt_accepted(self) -> bool {
+        self.relative <= LDLT_ACCEPTED
+    }
 }
 
 /// Solves A x = b with `f` and checks it as [`check_test_solve`] does
-/// (b = 0: on the test right-hand side instead, x = 0). Returns x and the
-/// relative residual.
+/// (b = 0: on the test right-hand side instead, x = 0). Returns x and how
+/// well it solves.
 fn check_solve(
     a: &SparseColMat<usize, f64>,
     f: &Factorization,
     b: &[f64],
     what: &str,
-) -> Result<(Vec<f64>, f64)> {
+) -> Result<(Vec<f64>, SolveQuality)> {
     if b.is_empty() {
         // No unknowns (every dof fixed): x = () solves exactly. Without this
         // the b = 0 branch would retry on an empty test vector forever.
-        return Ok((Vec::new(), 0.0));
+        return Ok((Vec::new(), SolveQuality::EXACT));
     }
     if norm_inf(b) == 0.0 {
-        let rel = check_solve(a, f, &test_rhs(a.nrows()), what)?.1;
-        return Ok((vec![0.0; b.len()], rel));
+        let quality = check_solve(a, f, &test_rhs(a.nrows()), what)?.1;
+        return Ok((vec![0.0; b.len()], quality));
     }
     let mut x = b.to_vec();
     f.solve_in_place(&mut x);
-    let rel = judge_solve(a, &x, b, what)?;
-    Ok((x, rel))
+    let quality = judge_solve(a, &x, b, what)?;
+    Ok((x, quality))
 }
 
-/// ‖Ax − b‖∞/‖b‖∞ of a solution x of A x = b (b ≠ 0); an error when x is
-/// not finite or the residual is above 1e-6.
-fn judge_solve(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64], what: &str) -> Result<f64> {
+/// How well x solves A x = b (b ≠ 0); an error when x is not finite or the
+/// relative residual is above 1e-6.
+fn judge_solve(
+    a: &SparseColMat<usize, f64>,
+    x: &[f64],
+    b: &[f64],
+    what: &str,
+) -> Result<SolveQuality> {
     if x.iter().any(|v| !v.is_finite()) {
         return Err(Error::numerical(
             what,
@@ -239,7 +290,8 @@ fn judge_solve(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64], what: &str) -
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let rel = norm_inf(&residual(a, x, b)) / norm_inf(b);
+    let quality = SolveQuality::of(a, x, b);
+    let rel = quality.relative;
     if rel > 1e-6 {
         return Err(Error::numerical(
             what,
@@ -249,7 +301,7 @@ fn judge_solve(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64], what: &str) -
             ),
         ));
     }
-    Ok(rel)
+    Ok(quality)
 }
 
 /// The symbolic LU analysis of `a`'s pattern.
@@ -311,6 +363,8 @@ enum SymbolicAnalysis {
     Ldlt {
         symbolic: Arc<SymbolicCholesky<usize>>,
         n_primal: usize,
+        /// The order it was analysed for ([`Solves`]).
+        order: Solves,
     },
     Llt(SymbolicLlt<usize>),
 }
@@ -325,8 +379,8 @@ enum SymbolicAnalysis {
 /// the pattern of A: the counts are those of S.
 pub struct ReusableFactorization {
     nrows: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+    /// The analysed pattern (compact), shared with condensed factorisations.
+    pattern: Arc<SymbolicSparseColMat<usize>>,
     /// The factoriser of A, or of S when condensed.
     direct: DirectFactorizer,
     condensation: Option<Arc<CondensationPlan>>,
@@ -340,6 +394,9 @@ struct DirectFactorizer {
     symbolic: SymbolicAnalysis,
     symbolic_analyses: usize,
     numeric_factorizations: usize,
+    /// Why each fallback was taken, in order (named by a failure of the
+    /// factorisation it led to).
+    fallbacks: Vec<String>,
 }
 
 impl ReusableFactorization {
@@ -384,11 +441,9 @@ impl ReusableFactorization {
                 (direct, Some(Arc::new(plan)))
             }
         };
-        let (col_ptr, row_idx) = pattern_of(a);
         Ok(ReusableFactorization {
             nrows: a.nrows(),
-            col_ptr,
-            row_idx,
+            pattern: Arc::new(pattern_of(a)),
             direct,
             condensation,
             kind,
@@ -417,8 +472,7 @@ impl ReusableFactorization {
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
-        let (col_ptr, row_idx) = pattern_of(a);
-        if a.nrows() != self.nrows || col_ptr != self.col_ptr || row_idx != self.row_idx {
+        if a.nrows() != self.nrows || !has_pattern(a, &self.pattern) {
             return Err(Error::numerical(
                 what,
                 "sparsity pattern",
@@ -442,22 +496,27 @@ impl ReusableFactorization {
             plan: plan.clone(),
             local,
             schur,
-            matrix: a.clone(),
+            pattern: self.pattern.clone(),
+            values: (0..a.ncols())
+                .flat_map(|j| a.val_of_col(j))
+                .copied()
+                .collect(),
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
         };
-        refine_to_round_off(a, condensed.norm, &mut x, b, |d| {
+        refine_to_round_off(a.as_ref(), condensed.norm, &mut x, b, |d| {
             condensed.raw_solve(d, false)
         });
         let f = Factorization::Condensed(Box::new(condensed));
         // Judged on A itself: the local eliminations are not refined.
-        let (x, rel) = if norm_inf(b) == 0.0 {
+        let checked = if norm_inf(b) == 0.0 {
             check_solve(a, &f, b, what)
         } else {
-            judge_solve(a, &x, b, what).map(|rel| (x, rel))
-        }
-        .unwrap_or((Vec::new(), f64::INFINITY));
-        if rel <= LDLT_ACCEPTED {
-            return Ok((f, x, rel));
+            judge_solve(a, &x, b, what).map(|q| (x, q))
+        };
+        if let Ok((x, quality)) = checked {
+            if quality.ldlt_accepted() {
+                return Ok((f, x, quality.relative));
+            }
         }
         // S lost the accuracy A allows (cancellation in A_RR − A_RI A_II⁻¹
         // A_IR: the shell at ρ = 1e12, refined residual 5e-8 condensed, 3e-10
@@ -521,6 +580,7 @@ impl DirectFactorizer {
             MatrixKind::SymmetricSaddle { n_primal } => SymbolicAnalysis::Ldlt {
                 symbolic: Arc::new(analyze_symmetric(a, n_primal, solves, what)?),
                 n_primal,
+                order: solves,
             },
             MatrixKind::SymmetricPositiveDefinite => SymbolicAnalysis::Llt(
                 SymbolicLlt::try_new(a.symbolic(), Side::Lower)
@@ -531,6 +591,7 @@ impl DirectFactorizer {
             symbolic,
             symbolic_analyses: 1,
             numeric_factorizations: 0,
+            fallbacks: Vec::new(),
         })
     }
 
@@ -547,10 +608,18 @@ impl DirectFactorizer {
         let f = match &self.symbolic {
             SymbolicAnalysis::Lu(symbolic) => Factorization::Lu(Box::new(
                 Lu::try_new_with_symbolic(symbolic.clone(), a.as_ref()).map_err(|e| {
-                    Error::numerical(what, "LU", format!("singular matrix ({e:?})"))
+                    let reason = match e {
+                        faer::sparse::linalg::LuError::Generic(FaerError::OutOfMemory) => {
+                            "out of memory".to_string()
+                        }
+                        e => format!("singular matrix ({e:?})"),
+                    };
+                    Error::numerical(what, "LU", self.after_fallbacks(reason))
                 })?,
             )),
-            SymbolicAnalysis::Ldlt { symbolic, n_primal } if *n_primal == a.nrows() => {
+            SymbolicAnalysis::Ldlt {
+                symbolic, n_primal, ..
+            } if *n_primal == a.nrows() => {
                 // Every pivot positive (the SPD fallback): no pivot is
                 // regularised, so the refined solve is backward stable; its
                 // residual relative to ‖b‖ may still be ~ε·κ (thin shells:
@@ -564,36 +633,58 @@ impl DirectFactorizer {
                         let rhs = if norm_inf(b) == 0.0 { test_rhs(a.nrows()) } else { b.to_vec() };
                         let mut x = rhs.clone();
                         f.solve_in_place(&mut x);
-                        let r = norm_inf(&residual(a, &x, &rhs));
-                        let backward = r / (norm_inf(a.val()) * norm_inf(&x) + norm_inf(&rhs));
-                        (backward <= SPD_BACKWARD_ACCEPTED).then(|| {
+                        let quality = SolveQuality::of(a, &x, &rhs);
+                        (quality.backward <= BACKWARD_ACCEPTED).then(|| {
                             let x = if norm_inf(b) == 0.0 { vec![0.0; b.len()] } else { x };
-                            (f, x, r / norm_inf(&rhs))
+                            (f, x, quality.relative)
                         })
                     });
                 if let Some(done) = solved {
                     self.numeric_factorizations += 1;
                     return Ok(done);
                 }
-                return self.retry_with(lu_analysis(a, what)?, a, b, what);
+                let why = "LDLᵀ with positive pivots missed its backward error".to_string();
+                return self.retry_with(lu_analysis(a, what)?, why, a, b, what);
             }
-            SymbolicAnalysis::Ldlt { symbolic, n_primal } => {
-                let ldlt = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what).ok();
-                let f = ldlt.map(|l| Factorization::Ldlt(Box::new(l)));
-                let solved = f.as_ref().and_then(|f| check_solve(a, f, b, what).ok());
-                match (f, solved) {
-                    (Some(f), Some((x, rel))) if rel <= LDLT_ACCEPTED => {
+            SymbolicAnalysis::Ldlt {
+                symbolic,
+                n_primal,
+                order,
+            } => {
+                let (n_primal, order) = (*n_primal, *order);
+                let ldlt = RegularizedLdlt::new(symbolic.clone(), a, n_primal, what);
+                let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
+                    let (x, quality) = check_solve(a, &f, b, what)?;
+                    Ok((f, x, quality))
+                });
+                let why = match solved {
+                    Ok((f, x, quality)) if quality.ldlt_accepted() => {
                         self.numeric_factorizations += 1;
-                        return Ok((f, x, rel));
+                        return Ok((f, x, quality.relative));
                     }
-                    _ => {
-                        // A zero pivot, or the refined solve misses its
-                        // accuracy (the signs are not the matrix's inertia,
-                        // or the matrix defeats the regularisation): LU from
-                        // now on.
-                        return self.retry_with(lu_analysis(a, what)?, a, b, what);
-                    }
-                }
+                    Ok((_, _, q)) => format!(
+                        "LDLᵀ ({}): refined residual {:.1e} above {LDLT_ACCEPTED:.0e}",
+                        order.describe(),
+                        q.relative
+                    ),
+                    Err(e) => format!("LDLᵀ ({}): {e}", order.describe()),
+                };
+                // A zero pivot, or the refined solve misses its accuracy.
+                // The AMD order regularises the pivots of multipliers that
+                // come before their neighbours, and refinement cannot undo a
+                // perturbation the conditioning amplifies (the shell at
+                // ρ = 1e12; the condensed shell's first Newton matrix at
+                // n = 256): the order that regularises no pivot next, then LU
+                // (the signs are not the matrix's inertia).
+                let next = match order {
+                    Solves::Few => SymbolicAnalysis::Ldlt {
+                        symbolic: Arc::new(analyze_symmetric(a, n_primal, Solves::Many, what)?),
+                        n_primal,
+                        order: Solves::Many,
+                    },
+                    Solves::Many => lu_analysis(a, what)?,
+                };
+                return self.retry_with(next, why, a, b, what);
             }
             SymbolicAnalysis::Llt(symbolic) => Factorization::Cholesky(
                 Llt::try_new_with_symbolic(symbolic.clone(), a.as_ref(), Side::Lower).map_err(
@@ -609,7 +700,7 @@ impl DirectFactorizer {
         };
         self.numeric_factorizations += 1;
         match check_solve(a, &f, b, what) {
-            Ok((x, rel)) => Ok((f, x, rel)),
+            Ok((x, quality)) => Ok((f, x, quality.relative)),
             Err(e) if matches!(self.symbolic, SymbolicAnalysis::Llt(_)) => {
                 // An SPD matrix too ill-conditioned for a plain Cholesky solve
                 // (thin shells: membrane ~ Eε against bending ~ Eε³): the
@@ -618,34 +709,57 @@ impl DirectFactorizer {
                 // at ε = 0.008 (p2b-psri, 16×16), test residual 1.4e-6 plain,
                 // round-off equilibrated and refined.
                 let n = a.nrows();
+                let why = format!("Cholesky: {e}");
                 let symbolic = analyze_symmetric(a, n, Solves::Few, what).map_err(|_| e)?;
                 let ldlt = SymbolicAnalysis::Ldlt {
                     symbolic: Arc::new(symbolic),
                     n_primal: n,
+                    order: Solves::Few,
                 };
-                self.retry_with(ldlt, a, b, what)
+                self.retry_with(ldlt, why, a, b, what)
             }
             Err(e) => Err(e),
         }
     }
 
-    /// A fallback: a new symbolic analysis from now on, and the numeric
-    /// factorisation and solve again with it.
+    /// A fallback (`why`: what failed): a new symbolic analysis from now
+    /// on, and the numeric factorisation and solve again with it.
     fn retry_with(
         &mut self,
         symbolic: SymbolicAnalysis,
+        why: String,
         a: &SparseColMat<usize, f64>,
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
+        self.fallbacks.push(why);
         self.symbolic = symbolic;
         self.symbolic_analyses += 1;
         self.factorize_and_solve(a, b, what)
     }
 }
 
-/// Column pointers and row indices of `a` in compact form.
-fn pattern_of(a: &SparseColMat<usize, f64>) -> (Vec<usize>, Vec<usize>) {
+impl DirectFactorizer {
+    /// `reason`, preceded by the failures that led here.
+    fn after_fallbacks(&self, reason: String) -> String {
+        match self.fallbacks.is_empty() {
+            true => reason,
+            false => format!("{reason} (a fallback after: {})", self.fallbacks.join("; ")),
+        }
+    }
+}
+
+/// Whether `a` has the `pattern`, compared column by column (no copy of
+/// `a`'s pattern: it is as large as A's values).
+fn has_pattern(a: &SparseColMat<usize, f64>, pattern: &SymbolicSparseColMat<usize>) -> bool {
+    a.nrows() == pattern.nrows()
+        && a.ncols() == pattern.ncols()
+        && (0..a.ncols())
+            .all(|j| a.symbolic().row_idx_of_col_raw(j) == pattern.row_idx_of_col_raw(j))
+}
+
+/// The pattern of `a` in compact form.
+fn pattern_of(a: &SparseColMat<usize, f64>) -> SymbolicSparseColMat<usize> {
     let s = a.symbolic();
     let mut col_ptr = Vec::with_capacity(a.ncols() + 1);
     let mut row_idx = Vec::with_capacity(a.val().len());
@@ -654,7 +768,7 @@ fn pattern_of(a: &SparseColMat<usize, f64>) -> (Vec<usize>, Vec<usize>) {
         row_idx.extend(s.row_idx_of_col(j));
         col_ptr.push(row_idx.len());
     }
-    (col_ptr, row_idx)
+    SymbolicSparseColMat::new_checked(a.nrows(), a.ncols(), col_ptr, None, row_idx)
 }
 
 impl Factorization {
@@ -803,15 +917,25 @@ fn multipliers_after_neighbours(
 /// A + E with ‖E‖ ≤ δ; refinement against A removes the perturbation, each
 /// step gaining about −log₁₀(√ε) ≈ 8 digits.
 const REGULARIZATION: f64 = 1.5e-8;
-/// Test residual (‖Ax − b‖∞/‖b‖∞ after refinement) up to which the LDLᵀ is
-/// used, else LU. Measured on the shell matrices (ρ = 0 … 1e12, thin,
-/// plate, with and without the ψ scaling): LDLᵀ and LU both leave
-/// 1e-12 … 7e-10 on these ill-conditioned matrices.
-const LDLT_ACCEPTED: f64 = 1e-8;
+/// Test residual (‖Ax − b‖∞/‖b‖∞ after refinement) up to which the LDLᵀ (or
+/// the condensed factorisation) is used, else the next fallback. Measured on
+/// the shell matrices (ρ = 0 … 1e12, thin, plate, with and without the ψ
+/// scaling, 16×16): LDLᵀ and LU both leave 1e-12 … 7e-10; the AMD order at
+/// ρ = 1e12, whose regularised pivots the refinement cannot undo, 5.1e-7
+/// (LU 4.2e-9; `ldlt_matches_lu_on_the_shell`). The residual grows with the
+/// conditioning, i.e. with n: the condensed shell's first Newton matrix
+/// leaves 2.5e-9 at n = 128 and 1.5e-8 at n = 256 (S alone 1.4e-8 with the
+/// AMD order, 1.6e-8 with the other; normwise backward errors 2e-16; the
+/// whole matrix 5.9e-9), where the earlier bound 1e-8 sent it to LU, which
+/// ran out of memory. Below the condensed shell at ρ = 1e12 (5e-8, whole
+/// 3e-10: cancellation in S), which must go on to the whole matrix. An
+/// empirical bound between measured cases, as the normwise backward error
+/// cannot tell them apart (ρ dominates ‖A‖).
+const LDLT_ACCEPTED: f64 = 3e-8;
 /// Backward error ‖Ax − b‖∞/(‖A‖ ‖x‖∞ + ‖b‖∞) up to which the SPD fallback
 /// (equilibrated, refined LDLᵀ of a matrix plain Cholesky could not solve
 /// to 1e-6) is accepted.
-const SPD_BACKWARD_ACCEPTED: f64 = 1e-12;
+const BACKWARD_ACCEPTED: f64 = 1e-12;
 /// Refinement steps at most; they stop earlier at round-off level.
 const MAX_REFINEMENT: usize = 6;
 
@@ -847,17 +971,16 @@ impl RegularizedLdlt {
     ) -> Result<Self> {
         let n = a.nrows();
         let scale = symmetric_equilibration(a);
-        let mut scaled = a.clone();
-        {
-            let (symbolic, values) = scaled.parts_mut();
-            let (col_ptr, row_idx) = (symbolic.col_ptr(), symbolic.row_idx());
-            for j in 0..n {
-                for k in col_ptr[j]..col_ptr[j + 1] {
-                    values[k] *= scale[row_idx[k]] * scale[j];
-                }
+        // D A D: A's pattern with scaled values (a copy of the values only).
+        let (col_ptr, row_idx) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
+        let mut scaled_values = a.val().to_vec();
+        for j in 0..n {
+            for k in col_ptr[j]..col_ptr[j + 1] {
+                scaled_values[k] *= scale[row_idx[k]] * scale[j];
             }
         }
-        let scaled_norm = norm_inf(scaled.val()).max(f64::MIN_POSITIVE);
+        let scaled = SparseColMatRef::new(a.symbolic(), &scaled_values);
+        let scaled_norm = norm_inf(&scaled_values).max(f64::MIN_POSITIVE);
         let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
         let mut values = vec![0.0; symbolic.len_val()];
         let par = parallelism();
@@ -866,7 +989,7 @@ impl RegularizedLdlt {
         symbolic
             .factorize_numeric_ldlt(
                 &mut values,
-                scaled.as_ref(),
+                scaled,
                 Side::Lower,
                 LdltRegularization {
                     dynamic_regularization_signs: Some(&signs),
@@ -932,7 +1055,9 @@ impl RegularizedLdlt {
         self.raw_solve(b, k);
         for c in 0..k {
             let (x, bc) = (&mut b[c * n..(c + 1) * n], &rhs[c * n..(c + 1) * n]);
-            refine_to_round_off(&self.matrix, self.norm, x, bc, |d| self.raw_solve(d, 1));
+            refine_to_round_off(self.matrix.as_ref(), self.norm, x, bc, |d| {
+                self.raw_solve(d, 1)
+            });
         }
     }
 
@@ -941,7 +1066,9 @@ impl RegularizedLdlt {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         let rhs = b.to_vec();
         self.raw_solve(b, 1);
-        refine_to_round_off(&self.matrix, self.norm, b, &rhs, |d| self.raw_solve(d, 1))
+        refine_to_round_off(self.matrix.as_ref(), self.norm, b, &rhs, |d| {
+            self.raw_solve(d, 1)
+        })
     }
 }
 
@@ -952,13 +1079,13 @@ impl RegularizedLdlt {
 /// Returns A x of the final x (the product its last residual used: callers
 /// that need A x, Uzawa's KKT measures, take it instead of a second product).
 fn refine_to_round_off(
-    a: &SparseColMat<usize, f64>,
+    a: SparseColMatRef<'_, usize, f64>,
     norm: f64,
     x: &mut [f64],
     b: &[f64],
     solve: impl Fn(&mut [f64]),
 ) -> Vec<f64> {
-    let mut ax = mat_vec(a, x);
+    let mut ax = mat_vec_ref(a, x);
     let mut r = difference(b, &ax);
     let mut size = norm_inf(&r);
     for _ in 0..MAX_REFINEMENT {
@@ -970,7 +1097,7 @@ fn refine_to_round_off(
         let mut dx = r;
         solve(&mut dx);
         let candidate: Vec<f64> = x.iter().zip(&dx).map(|(xi, di)| xi + di).collect();
-        let ax_new = mat_vec(a, &candidate);
+        let ax_new = mat_vec_ref(a, &candidate);
         let r_new = difference(b, &ax_new);
         let size_new = norm_inf(&r_new);
         // Keep the step only while it pays: at the accuracy the
@@ -991,6 +1118,11 @@ fn round_off(norm: f64, x: &[f64], b: &[f64]) -> f64 {
 
 /// y = A x.
 pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
+    mat_vec_ref(a.as_ref(), x)
+}
+
+/// y = A x for a borrowed matrix.
+fn mat_vec_ref(a: SparseColMatRef<'_, usize, f64>, x: &[f64]) -> Vec<f64> {
     let mut y = vec![0.0; a.nrows()];
     let (cp, ri, val) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
     for j in 0..a.ncols() {

@@ -76,6 +76,13 @@ const MAX_LOCAL_CONDITION: f64 = 1e15;
 
 const NONE: usize = usize::MAX;
 
+/// An index into A's or S's values in the plan's maps.
+type Index = u32;
+
+fn index(i: usize) -> Index {
+    Index::try_from(i).expect("below Index::MAX (checked by the plan)")
+}
+
 /// What a matrix pattern and its groups give, computed once: the remaining
 /// unknowns, each group's boundary R_g, the pattern of S and where every
 /// entry of A goes.
@@ -88,15 +95,17 @@ pub(super) struct CondensationPlan {
     boundary_offsets: Vec<usize>,
     boundary: Vec<usize>,
     /// Entries of A between remaining unknowns: (A value index, S value index).
-    rest_entries: Vec<(usize, usize)>,
+    /// 32-bit, as the other maps: they are the plan's bulk (1.8 GB in
+    /// 64-bit at the shell's n = 256, 67.7M entries of A).
+    rest_entries: Vec<(Index, Index)>,
     /// Per group, (A value index, slot in the local (p+q)² column-major
     /// block, interior unknowns first), CSR over groups.
     local_offsets: Vec<usize>,
-    local_entries: Vec<(usize, usize)>,
+    local_entries: Vec<(Index, Index)>,
     /// Per group, the S value index of each of its q×q (column-major)
     /// Schur terms, CSR over groups (offsets Σ q²).
     schur_offsets: Vec<usize>,
-    schur_positions: Vec<usize>,
+    schur_positions: Vec<Index>,
     /// Offsets of each group's A_II⁻¹ (Σ p²) and W = A_II⁻¹ A_IR (Σ p q).
     inverse_offsets: Vec<usize>,
     coupling_offsets: Vec<usize>,
@@ -155,6 +164,16 @@ impl CondensationPlan {
                 }
                 group_of[i] = g;
             }
+        }
+        if a.val().len() > Index::MAX as usize {
+            return Err(fail(
+                "matrix entries".into(),
+                format!(
+                    "{} entries: condensation indexes at most {} (solver.condense = false factorises A itself)",
+                    a.val().len(),
+                    Index::MAX
+                ),
+            ));
         }
         let mut s_index = vec![NONE; n];
         let remaining: Vec<usize> = (0..n).filter(|&i| group_of[i] == NONE).collect();
@@ -222,6 +241,16 @@ impl CondensationPlan {
             *col = Vec::new();
         }
         drop(columns);
+        if s_row_idx.len() > Index::MAX as usize {
+            return Err(fail(
+                "Schur complement entries".into(),
+                format!(
+                    "{} entries: condensation indexes at most {} (solver.condense = false factorises A itself)",
+                    s_row_idx.len(),
+                    Index::MAX
+                ),
+            ));
+        }
         let position = |r: usize, c: usize| -> usize {
             let rows = &s_row_idx[s_col_ptr[c]..s_col_ptr[c + 1]];
             s_col_ptr[c] + rows.binary_search(&r).expect("in the pattern of S")
@@ -233,7 +262,9 @@ impl CondensationPlan {
             for k in col_ptr[j]..col_ptr[j + 1] {
                 let i = row_idx[k];
                 match (group_of[i], group_of[j]) {
-                    (NONE, NONE) => rest_entries.push((k, position(s_index[i], s_index[j]))),
+                    (NONE, NONE) => {
+                        rest_entries.push((index(k), index(position(s_index[i], s_index[j]))))
+                    }
                     (NONE, g) | (g, _) => local_count[g + 1] += 1,
                 }
             }
@@ -264,7 +295,10 @@ impl CondensationPlan {
                     (NONE, g) | (g, _) => g,
                 };
                 let size = groups.group(g).len() + boundary_offsets[g + 1] - boundary_offsets[g];
-                local_entries[next[g]] = (k, local_index(g, j) * size + local_index(g, i));
+                local_entries[next[g]] = (
+                    index(k),
+                    index(local_index(g, j) * size + local_index(g, i)),
+                );
                 next[g] += 1;
             }
         }
@@ -276,7 +310,7 @@ impl CondensationPlan {
             let (p, q) = (groups.group(g).len(), b.len());
             for &c in b {
                 for &r in b {
-                    schur_positions.push(position(r, c));
+                    schur_positions.push(index(position(r, c)));
                 }
             }
             schur_offsets.push(schur_positions.len());
@@ -342,7 +376,7 @@ impl CondensationPlan {
         let mut s = self.schur_pattern();
         let s_values = s.val_mut();
         for &(k, pos) in &self.rest_entries {
-            s_values[pos] += values[k];
+            s_values[pos as usize] += values[k as usize];
         }
         let mut inverse = vec![0.0; *self.inverse_offsets.last().expect("offsets")];
         let mut coupling = vec![0.0; *self.coupling_offsets.last().expect("offsets")];
@@ -356,7 +390,7 @@ impl CondensationPlan {
             block.resize(size * size, 0.0);
             for &(k, slot) in &self.local_entries[self.local_offsets[g]..self.local_offsets[g + 1]]
             {
-                block[slot] += values[k];
+                block[slot as usize] += values[k as usize];
             }
             let at = |r: usize, c: usize| block[c * size + r];
             let inv = &mut inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
@@ -379,7 +413,7 @@ impl CondensationPlan {
             for c in 0..q {
                 for r in 0..q {
                     let term: f64 = (0..p).map(|l| at(p + r, l) * w[l * q + c]).sum();
-                    s_values[positions[c * q + r]] -= term;
+                    s_values[positions[c * q + r] as usize] -= term;
                 }
             }
             if let Some(v) = transposed_coupling.as_mut() {
