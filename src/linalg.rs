@@ -113,13 +113,110 @@ pub struct CondensedFactorization {
     plan: Arc<CondensationPlan>,
     local: LocalFactors,
     schur: Factorization,
-    /// A (its pattern shared with the [`ReusableFactorization`] that made
-    /// it, its values copied) and ‖A‖∞ (max entry), for the refinement of
-    /// each solve: the local eliminations are not refined by S's
-    /// factorisation (ρ = 1e12 shell: residual 5e-8 unrefined).
-    pattern: Arc<SymbolicSparseColMat<usize>>,
-    values: Vec<f64>,
+    /// A and ‖A‖∞ (max entry), for the refinement of each solve: the local
+    /// eliminations are not refined by S's factorisation (ρ = 1e12 shell:
+    /// residual 5e-8 unrefined).
+    matrix: RefinementMatrix,
     norm: f64,
+}
+
+/// The matrix a condensed factorisation refines its solves against.
+enum RefinementMatrix {
+    /// A symmetric matrix by its lower triangle ([`SymmetricLower`]).
+    Symmetric(SymmetricLower),
+    /// Any other: A's values on its pattern (shared with the
+    /// [`ReusableFactorization`] that made the factorisation).
+    General {
+        pattern: Arc<SymbolicSparseColMat<usize>>,
+        values: Vec<f64>,
+    },
+}
+
+impl RefinementMatrix {
+    fn of(
+        a: &SparseColMat<usize, f64>,
+        pattern: &Arc<SymbolicSparseColMat<usize>>,
+        kind: MatrixKind,
+    ) -> Self {
+        match kind {
+            MatrixKind::General => RefinementMatrix::General {
+                pattern: pattern.clone(),
+                values: (0..a.ncols())
+                    .flat_map(|j| a.val_of_col(j))
+                    .copied()
+                    .collect(),
+            },
+            _ => RefinementMatrix::Symmetric(SymmetricLower::of(a)),
+        }
+    }
+
+    /// A x.
+    fn product(&self, x: &[f64]) -> Vec<f64> {
+        match self {
+            RefinementMatrix::Symmetric(lower) => lower.product(x),
+            RefinementMatrix::General { pattern, values } => {
+                mat_vec_ref(SparseColMatRef::new((**pattern).as_ref(), values), x)
+            }
+        }
+    }
+}
+
+/// A symmetric matrix by its diagonal and strictly lower triangle (CSC,
+/// 32-bit rows): y = A x reads each off-diagonal entry once, for both of
+/// its places. Half the memory of A, and of the traffic of the product
+/// that refines every condensed solve (Uzawa: one per iteration). The
+/// upper triangle is not read, as in the LDLᵀ (`Side::Lower`).
+struct SymmetricLower {
+    diagonal: Vec<f64>,
+    col_ptr: Vec<usize>,
+    rows: Vec<u32>,
+    values: Vec<f64>,
+}
+
+impl SymmetricLower {
+    fn of(a: &SparseColMat<usize, f64>) -> Self {
+        let n = a.ncols();
+        assert!(
+            u32::try_from(n).is_ok(),
+            "a matrix of order {n}: rows are 32-bit"
+        );
+        let (mut diagonal, mut col_ptr) = (vec![0.0; n], Vec::with_capacity(n + 1));
+        let (mut rows, mut values) = (Vec::new(), Vec::new());
+        col_ptr.push(0);
+        for (j, d) in diagonal.iter_mut().enumerate() {
+            let column = a.symbolic().row_idx_of_col(j).zip(a.val_of_col(j));
+            for (i, &v) in column {
+                if i == j {
+                    *d += v;
+                } else if i > j {
+                    rows.push(i as u32);
+                    values.push(v);
+                }
+            }
+            col_ptr.push(rows.len());
+        }
+        SymmetricLower {
+            diagonal,
+            col_ptr,
+            rows,
+            values,
+        }
+    }
+
+    fn product(&self, x: &[f64]) -> Vec<f64> {
+        let mut y: Vec<f64> = self.diagonal.iter().zip(x).map(|(d, xi)| d * xi).collect();
+        for (j, &xj) in x.iter().enumerate() {
+            let range = self.col_ptr[j]..self.col_ptr[j + 1];
+            let mut upper = 0.0;
+            for (&i, &v) in self.rows[range.clone()].iter().zip(&self.values[range]) {
+                let i = i as usize;
+                y[i] += v * xj;
+                upper += v * x[i];
+            }
+            y[j] += upper;
+        }
+        y
+    }
 }
 
 impl CondensedFactorization {
@@ -137,13 +234,13 @@ impl CondensedFactorization {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         let rhs = b.to_vec();
         self.raw_solve(b, false);
-        refine_to_round_off(self.matrix(), self.norm, b, &rhs, |d| {
-            self.raw_solve(d, false)
-        })
-    }
-
-    fn matrix(&self) -> SparseColMatRef<'_, usize, f64> {
-        SparseColMatRef::new((*self.pattern).as_ref(), &self.values)
+        refine_to_round_off(
+            |v| self.matrix.product(v),
+            self.norm,
+            b,
+            &rhs,
+            |d| self.raw_solve(d, false),
+        )
     }
 
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
@@ -496,14 +593,11 @@ impl ReusableFactorization {
             plan: plan.clone(),
             local,
             schur,
-            pattern: self.pattern.clone(),
-            values: (0..a.ncols())
-                .flat_map(|j| a.val_of_col(j))
-                .copied()
-                .collect(),
+            matrix: RefinementMatrix::of(a, &self.pattern, self.kind),
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
         };
-        refine_to_round_off(a.as_ref(), condensed.norm, &mut x, b, |d| {
+        let product = |v: &[f64]| condensed.matrix.product(v);
+        refine_to_round_off(product, condensed.norm, &mut x, b, |d| {
             condensed.raw_solve(d, false)
         });
         let f = Factorization::Condensed(Box::new(condensed));
@@ -1055,9 +1149,13 @@ impl RegularizedLdlt {
         self.raw_solve(b, k);
         for c in 0..k {
             let (x, bc) = (&mut b[c * n..(c + 1) * n], &rhs[c * n..(c + 1) * n]);
-            refine_to_round_off(self.matrix.as_ref(), self.norm, x, bc, |d| {
-                self.raw_solve(d, 1)
-            });
+            refine_to_round_off(
+                |v| mat_vec(&self.matrix, v),
+                self.norm,
+                x,
+                bc,
+                |d| self.raw_solve(d, 1),
+            );
         }
     }
 
@@ -1066,9 +1164,13 @@ impl RegularizedLdlt {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         let rhs = b.to_vec();
         self.raw_solve(b, 1);
-        refine_to_round_off(self.matrix.as_ref(), self.norm, b, &rhs, |d| {
-            self.raw_solve(d, 1)
-        })
+        refine_to_round_off(
+            |v| mat_vec(&self.matrix, v),
+            self.norm,
+            b,
+            &rhs,
+            |d| self.raw_solve(d, 1),
+        )
     }
 }
 
@@ -1079,13 +1181,13 @@ impl RegularizedLdlt {
 /// Returns A x of the final x (the product its last residual used: callers
 /// that need A x, Uzawa's KKT measures, take it instead of a second product).
 fn refine_to_round_off(
-    a: SparseColMatRef<'_, usize, f64>,
+    product: impl Fn(&[f64]) -> Vec<f64>,
     norm: f64,
     x: &mut [f64],
     b: &[f64],
     solve: impl Fn(&mut [f64]),
 ) -> Vec<f64> {
-    let mut ax = mat_vec_ref(a, x);
+    let mut ax = product(x);
     let mut r = difference(b, &ax);
     let mut size = norm_inf(&r);
     for _ in 0..MAX_REFINEMENT {
@@ -1097,7 +1199,7 @@ fn refine_to_round_off(
         let mut dx = r;
         solve(&mut dx);
         let candidate: Vec<f64> = x.iter().zip(&dx).map(|(xi, di)| xi + di).collect();
-        let ax_new = mat_vec_ref(a, &candidate);
+        let ax_new = product(&candidate);
         let r_new = difference(b, &ax_new);
         let size_new = norm_inf(&r_new);
         // Keep the step only while it pays: at the accuracy the
