@@ -174,7 +174,7 @@ fn a_mesh_beyond_memory_is_refused_before_meshing() {
         &[
             "mesh.n",
             "before meshing",
-            "3.000e10 triangles",
+            "2.900e10 triangles",
             "GB",
             "mesh.memory_limit_gb",
         ],

@@ -638,6 +638,39 @@ fn ldlt_falls_back_to_lu_when_the_signs_are_wrong() {
     assert!(res < 1e-10, "{res:e}");
 }
 
+#[test]
+fn a_singular_saddle_matrix_fails_naming_every_fallback() {
+    // [[K, bᵀ], [b, 0]] with K = [[1, 1], [1, 1]] and b = [1, 1]: the first
+    // two rows are equal. Both LDLᵀ orders miss their accuracy, LU fails,
+    // and the error says what was tried before it.
+    let entries: Vec<Triplet<usize, usize, f64>> = [
+        (0, 0),
+        (0, 1),
+        (1, 0),
+        (1, 1),
+        (0, 2),
+        (2, 0),
+        (1, 2),
+        (2, 1),
+    ]
+    .iter()
+    .map(|&(i, j)| Triplet::new(i, j, 1.0))
+    .collect();
+    let a = SparseColMat::try_new_from_triplets(3, 3, &entries).unwrap();
+    let kind = MatrixKind::SymmetricSaddle { n_primal: 2 };
+    let message = match factorize_checked(&a, kind, Solves::Few, "singular saddle") {
+        Ok(_) => panic!("a singular matrix was factorised"),
+        Err(e) => e.to_string(),
+    };
+    for part in [
+        "singular saddle",
+        "a fallback after: LDLᵀ (AMD order)",
+        "; LDLᵀ (multipliers after their neighbours)",
+    ] {
+        assert!(message.contains(part), "{part:?} not in {message}");
+    }
+}
+
 /// Uzawa through the entry point with the step `step`.
 fn uzawa_options(step: UzawaStep) -> SolverOptions {
     SolverOptions::Uzawa(UzawaOptions {
