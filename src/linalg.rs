@@ -342,9 +342,9 @@ impl SolveQuality {
     }
 
     /// A refined LDLᵀ (or condensed) solve is kept when its relative
-    /// residual is below [`LDLT_ACCEPTED`].
-    fn ldlt_accepted(self) -> bool {
-        self.relative <= LDLT_ACCEPTED
+    /// residual is below `bound` ([`LDLT_ACCEPTED`], [`CONDENSED_ACCEPTED`]).
+    fn accepted(self, bound: f64) -> bool {
+        self.relative <= bound
     }
 }
 
@@ -618,7 +618,7 @@ impl ReusableFactorization {
             judge_solve(a, &x, b, what).map(|q| (x, q))
         };
         if let Ok((x, quality)) = checked {
-            if quality.ldlt_accepted() {
+            if quality.accepted(CONDENSED_ACCEPTED) {
                 return Ok((f, x, quality.relative));
             }
         }
@@ -776,14 +776,15 @@ impl DirectFactorizer {
                     Ok((f, x, quality))
                 });
                 let why = match solved {
-                    Ok((f, x, quality)) if quality.ldlt_accepted() => {
+                    Ok((f, x, quality)) if quality.accepted(self.accepted()) => {
                         self.numeric_factorizations += 1;
                         return Ok((f, x, quality.relative));
                     }
                     Ok((_, _, q)) => format!(
-                        "LDLᵀ ({}): refined residual {:.1e} above {LDLT_ACCEPTED:.0e}",
+                        "LDLᵀ ({}): refined residual {:.1e} above {:.0e}",
                         order.describe(),
-                        q.relative
+                        q.relative,
+                        self.accepted()
                     ),
                     Err(e) => format!("LDLᵀ ({}): {e}", order.describe()),
                 };
@@ -863,6 +864,15 @@ impl DirectFactorizer {
         match self.fallbacks.is_empty() {
             true => reason,
             false => format!("{reason} (a fallback after: {})", self.fallbacks.join("; ")),
+        }
+    }
+
+    /// The relative residual up to which an LDLᵀ is kept: of a Schur
+    /// complement (whose fallback is the whole matrix) the condensed bound.
+    fn accepted(&self) -> f64 {
+        match self.lu_last {
+            true => LDLT_ACCEPTED,
+            false => CONDENSED_ACCEPTED,
         }
     }
 
@@ -1069,17 +1079,23 @@ fn multipliers_after_neighbours(
 /// A + E with ‖E‖ ≤ δ; refinement against A removes the perturbation, each
 /// step gaining about −log₁₀(√ε) ≈ 8 digits.
 const REGULARIZATION: f64 = 1.5e-8;
-/// Test residual (‖Ax − b‖∞/‖b‖∞ after refinement) up to which the LDLᵀ (or
-/// the condensed factorisation) is used, else the next fallback. Measured on
+/// Test residual (‖Ax − b‖∞/‖b‖∞ after refinement) up to which the LDLᵀ of a
+/// matrix factorised whole is used, else the next fallback. Measured on
 /// the shell matrices (ρ = 0 … 1e12, thin, plate, with and without the ψ
 /// scaling, 16×16): LDLᵀ and LU both leave 1e-12 … 7e-10; the AMD order at
 /// ρ = 1e12, whose regularised pivots the refinement cannot undo, 5.1e-7
 /// (LU 4.2e-9; `ldlt_matches_lu_on_the_shell`). The condensed shell's first
 /// Newton matrix at n = 256 leaves 1.4e-8 (S, AMD order), 1.6e-8 (S, the
-/// other order) and 5.9e-9 (the whole matrix): S gives way to A. A bound of
-/// 3e-8 kept S there, but let Young's modulus 1e-14 (`parsers_prop`) stop on
-/// an LDLᵀ at 1.3e-8 where LU reaches the tolerance.
+/// other order) and 5.9e-9 (the whole matrix). 3e-8 here let Young's
+/// modulus 1e-14 (`parsers_prop`) stop on a whole-matrix LDLᵀ at 1.3e-8 where
+/// LU reaches the tolerance.
 const LDLT_ACCEPTED: f64 = 1e-8;
+/// The bound of a condensed factorisation (S's LDLᵀ, and the condensed solve
+/// judged on A), whose fallback is the whole matrix: n = 256's 1.4e-8 (S) and
+/// 1.5e-8 (on A) are kept (falling back cost 10.1 GB against 7.0 GB), the
+/// condensed shell at ρ = 1e12 (5.0e-8, whole 3e-10: cancellation in S) goes
+/// on to the whole matrix.
+const CONDENSED_ACCEPTED: f64 = 3e-8;
 /// Backward error ‖Ax − b‖∞/(‖A‖ ‖x‖∞ + ‖b‖∞) up to which the SPD fallback
 /// (equilibrated, refined LDLᵀ of a matrix plain Cholesky could not solve
 /// to 1e-6) is accepted.

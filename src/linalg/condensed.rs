@@ -165,16 +165,20 @@ impl CondensationPlan {
                 group_of[i] = g;
             }
         }
-        if a.val().len() > Index::MAX as usize {
-            return Err(fail(
-                "matrix entries".into(),
+        // The plan's maps index values in 32 bits.
+        let within_index = |field: &str, entries: usize| {
+            match entries > Index::MAX as usize {
+            true => Err(fail(
+                field.to_string(),
                 format!(
-                    "{} entries: condensation indexes at most {} (solver.condense = false factorises A itself)",
-                    a.val().len(),
+                    "{entries} entries: condensation indexes at most {} (solver.condense = false factorises A itself)",
                     Index::MAX
                 ),
-            ));
+            )),
+            false => Ok(()),
         }
+        };
+        within_index("matrix entries", a.val().len())?;
         let mut s_index = vec![NONE; n];
         let remaining: Vec<usize> = (0..n).filter(|&i| group_of[i] == NONE).collect();
         for (r, &i) in remaining.iter().enumerate() {
@@ -241,16 +245,7 @@ impl CondensationPlan {
             *col = Vec::new();
         }
         drop(columns);
-        if s_row_idx.len() > Index::MAX as usize {
-            return Err(fail(
-                "Schur complement entries".into(),
-                format!(
-                    "{} entries: condensation indexes at most {} (solver.condense = false factorises A itself)",
-                    s_row_idx.len(),
-                    Index::MAX
-                ),
-            ));
-        }
+        within_index("Schur complement entries", s_row_idx.len())?;
         let position = |r: usize, c: usize| -> usize {
             let rows = &s_row_idx[s_col_ptr[c]..s_col_ptr[c + 1]];
             s_col_ptr[c] + rows.binary_search(&r).expect("in the pattern of S")
