@@ -223,6 +223,28 @@ fn shell_adapt_loop_runs_and_every_step_reads_back() {
     }
 }
 
+/// The thesis element with P1 contact multipliers (`obstacle.multiplier = "p1"`):
+/// the estimator reads λ in the layout's multiplier space (it read P0's and
+/// indexed past the P1 multiplier vector).
+#[test]
+fn shell_estimator_follows_the_p1_multiplier() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("p1.h5");
+    let o = solve_scene(
+        "naghdi-hypar-adapt",
+        &out,
+        &["obstacle.multiplier=\"p1\"", "adapt.max_steps=2"],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let steps = read_steps(&out).unwrap();
+    assert_eq!(steps.len(), 2);
+    for (k, step) in steps.iter().enumerate() {
+        let eta = field(step, "estimator");
+        assert_eq!(eta.len(), step.triangles.len(), "step {k}");
+        assert!(eta.iter().all(|e| e.is_finite() && *e > 0.0), "step {k}");
+    }
+}
+
 /// Bad `[adapt]` input on a shell scene: one error naming the scene file, the key and the reason.
 #[test]
 fn bad_shell_adapt_input_names_the_key() {

@@ -731,7 +731,7 @@ impl ModelSystem for NaghdiSystem<'_> {
         });
         let contact = obstacle.as_ref().map(|obstacle| ShellContact {
             multiplier: (
-                Space::new(self.mesh, self.layout.kind.multiplier_element()),
+                Space::new(self.mesh, self.layout.multiplier),
                 &report.lambda[..],
             ),
             obstacle,
