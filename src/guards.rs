@@ -18,20 +18,15 @@ use crate::scene::{ElementPair, Model, Scene};
 use crate::solvers::ContactProblem;
 
 /// Bytes per unknown of a whole shell run (assembly, factorisation,
-/// iteration, output) factorising the whole matrix (`solver.condense =
-/// false`), calibrated on `make bench`/`make scale` (docs/work-precision.md):
-/// p1b-p0 n = 128, 378,631 unknowns, active set 1796 MB (4.7 KB each);
-/// n = 256, 1,510,919 unknowns, 7408 MB (4.9 KB).
-const SHELL_BYTES_PER_UNKNOWN_WHOLE: f64 = 5.0e3;
-
-/// The same with static condensation (the default), which holds S, its
-/// factor, the local eliminations and A's values besides A: measured
-/// (docs/work-precision.md, "Scale after condensation", 32-bit plan and no
-/// second copy of A's pattern) n = 64, 95,111 unknowns, 445 MB (4.7 KB
-/// each); n = 128, 378,631, 1700 MB (4.5 KB); n = 256, 1,510,919, 7033 MB
-/// (4.7 KB). Before those cuts: 5.5, 5.7 KB and, at n = 256, an LU
-/// fallback out of memory above 16.5 GB.
-const SHELL_BYTES_PER_UNKNOWN_CONDENSED: f64 = 5.0e3;
+/// iteration, output), condensed (the default) or not: the same within the
+/// measured spread since condensation keeps 32-bit maps and A's lower
+/// triangle only (docs/work-precision.md, "Scale" and "Scale after
+/// condensation"). Active set, p1b-p0: condensed n = 64, 95,111 unknowns,
+/// 445 MB (4.7 KB each); n = 128, 378,631, 1700 MB (4.5 KB); n = 256,
+/// 1,510,919, 7033 MB (4.7 KB); whole matrix n = 128 1796 MB (4.7 KB),
+/// n = 256 7408 MB (4.9 KB). Before those cuts condensed took 5.5–5.7 KB
+/// and, at n = 256, an LU fallback out of memory above 16.5 GB.
+const SHELL_BYTES_PER_UNKNOWN: f64 = 5.0e3;
 
 /// The membrane (one field, at most one bubble per triangle), condensed or
 /// not: the disk P1⊕B3–P0 at n = 512, 1,158,566 unknowns, active set
@@ -65,10 +60,9 @@ fn unknowns_per_triangle(model: Model, element: ElementPair) -> f64 {
 /// The estimate for a mesh of `triangles` triangles.
 pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
     let unknowns = triangles * unknowns_per_triangle(scene.model, scene.element);
-    let bytes_per_unknown = match (scene.model, scene.solver.condense) {
-        (Model::Membrane, _) => MEMBRANE_BYTES_PER_UNKNOWN,
-        (Model::Naghdi, true) => SHELL_BYTES_PER_UNKNOWN_CONDENSED,
-        (Model::Naghdi, false) => SHELL_BYTES_PER_UNKNOWN_WHOLE,
+    let bytes_per_unknown = match scene.model {
+        Model::Membrane => MEMBRANE_BYTES_PER_UNKNOWN,
+        Model::Naghdi => SHELL_BYTES_PER_UNKNOWN,
     };
     Estimate {
         triangles,

@@ -232,13 +232,10 @@ impl CondensedFactorization {
 
     /// Solves A x = b, refined; returns A x from the refinement's last residual.
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
-        let rhs = b.to_vec();
-        self.raw_solve(b, false);
-        refine_to_round_off(
+        solve_refined(
+            b,
             |v| self.matrix.product(v),
             self.norm,
-            b,
-            &rhs,
             |d| self.raw_solve(d, false),
         )
     }
@@ -475,7 +472,6 @@ enum SymbolicAnalysis {
 /// factorised matrix is the Schur complement S, whose pattern is fixed by
 /// the pattern of A: the counts are those of S.
 pub struct ReusableFactorization {
-    nrows: usize,
     /// The analysed pattern (compact), shared with condensed factorisations.
     pattern: Arc<SymbolicSparseColMat<usize>>,
     /// The factoriser of A, or of S when condensed.
@@ -543,7 +539,6 @@ impl ReusableFactorization {
             }
         };
         Ok(ReusableFactorization {
-            nrows: a.nrows(),
             pattern: Arc::new(pattern_of(a)),
             direct,
             condensation,
@@ -573,7 +568,7 @@ impl ReusableFactorization {
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
-        if a.nrows() != self.nrows || !has_pattern(a, &self.pattern) {
+        if !has_pattern(a, &self.pattern) {
             return Err(Error::numerical(
                 what,
                 "sparsity pattern",
@@ -668,7 +663,7 @@ impl ReusableFactorization {
     pub fn factorized_order(&self) -> usize {
         self.condensation
             .as_ref()
-            .map_or(self.nrows, |plan| plan.n_schur())
+            .map_or(self.pattern.nrows(), |plan| plan.n_schur())
     }
 }
 
@@ -1232,16 +1227,27 @@ impl RegularizedLdlt {
     /// Solves A x = b (one column) as [`RegularizedLdlt::solve_block_in_place`];
     /// returns A x from the refinement's last residual.
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
-        let rhs = b.to_vec();
-        self.raw_solve(b, 1);
-        refine_to_round_off(
+        solve_refined(
+            b,
             |v| mat_vec(&self.matrix, v),
             self.norm,
-            b,
-            &rhs,
             |d| self.raw_solve(d, 1),
         )
     }
+}
+
+/// Solves A x = b in place with `raw_solve` (an approximate inverse), then
+/// refines against `product` (A x) to round-off ([`refine_to_round_off`]);
+/// returns A x of the final x.
+fn solve_refined(
+    b: &mut [f64],
+    product: impl Fn(&[f64]) -> Vec<f64>,
+    norm: f64,
+    raw_solve: impl Fn(&mut [f64]),
+) -> Vec<f64> {
+    let rhs = b.to_vec();
+    raw_solve(b);
+    refine_to_round_off(product, norm, b, &rhs, raw_solve)
 }
 
 /// Iterative refinement x ← x + M⁻¹(b − A x) of a solution x of A x = b,
