@@ -8,6 +8,7 @@
 mod common;
 
 use common::{field, root_attr, run_obstacle, solve_scene, text};
+use obstacle_fem::mesh::signed_area;
 use obstacle_fem::output::{numeric_attr, read_result, read_steps, AttrValue, ResultFile};
 use obstacle_fem::scene::Scene;
 use std::collections::HashMap;
@@ -201,7 +202,7 @@ fn shell_adapt_loop_runs_and_every_step_reads_back() {
             .iter()
             .map(|t| {
                 let [a, b, c] = t.map(|v| last.vertices[v]);
-                0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])).abs()
+                signed_area(a, b, c).abs()
             })
             .collect();
         let p = places(&last);

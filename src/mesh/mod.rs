@@ -157,7 +157,8 @@ impl Mesh {
     }
 }
 
-fn signed_area(p0: [f64; 2], p1: [f64; 2], p2: [f64; 2]) -> f64 {
+/// Signed area of the triangle (p0, p1, p2): positive when counter-clockwise.
+pub fn signed_area(p0: [f64; 2], p1: [f64; 2], p2: [f64; 2]) -> f64 {
     0.5 * ((p1[0] - p0[0]) * (p2[1] - p0[1]) - (p2[0] - p0[0]) * (p1[1] - p0[1]))
 }
 

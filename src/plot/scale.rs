@@ -2,6 +2,7 @@
 //! map, isolines, clipping, and the log–log slope of a convergence curve.
 
 use super::*;
+use crate::mesh::signed_area;
 
 /// `v` with `sig` significant digits, trailing zeros trimmed; scientific
 /// notation outside [1e-3, 1e5).
@@ -319,7 +320,7 @@ pub(super) fn typical_edge_px<DB: DrawingBackend>(mesh: &Mesh, chart: &Chart2d<'
         .iter()
         .map(|t| {
             let [a, b, c] = t.map(|v| mesh.vertices[v]);
-            0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])).abs()
+            signed_area(a, b, c).abs()
         })
         .sum();
     let x = chart.x_range();
