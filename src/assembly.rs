@@ -7,7 +7,7 @@
 
 use crate::quadrature::TriangleRule;
 use crate::space::{Element, LocalBasis, Space, TriangleGeometry, MAX_LOCAL};
-use faer::sparse::{SparseColMat, Triplet};
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 
 use crate::linalg::InteriorGroups;
 /// The sparse kernels live in linalg.rs; re-exported for the FE users.
@@ -100,21 +100,56 @@ pub fn quadrature_points(mesh: &crate::mesh::Mesh, rule: &TriangleRule) -> Vec<[
         .collect()
 }
 
-/// Coordinate-format matrix entries (duplicates are summed on conversion).
+/// Coordinate-format matrix entries (duplicates are summed on conversion),
+/// 32-bit indices: assembly's triplets are the peak of a large run's
+/// assembly (the shell at n = 256: 132M entries, 3.2 GB as (usize, usize,
+/// f64), 2.1 GB as (u32, u32, f64)).
 #[derive(Debug, Clone, Default)]
 pub struct Triplets {
     pub nrows: usize,
     pub ncols: usize,
-    pub entries: Vec<(usize, usize, f64)>,
+    entries: Vec<(u32, u32, f64)>,
 }
 
 impl Triplets {
+    /// An empty matrix; panics when a dimension exceeds 32-bit indices
+    /// (4·10⁹ unknowns: the memory guard refuses such meshes long before).
     pub fn new(nrows: usize, ncols: usize) -> Self {
+        assert!(
+            u32::try_from(nrows).is_ok() && u32::try_from(ncols).is_ok(),
+            "a {nrows}×{ncols} matrix: assembly indexes rows and columns in 32 bits"
+        );
         Triplets {
             nrows,
             ncols,
             entries: Vec::new(),
         }
+    }
+
+    pub fn reserve(&mut self, additional: usize) {
+        self.entries.reserve(additional);
+    }
+
+    /// Adds v at (r, c) (summed with the other entries there).
+    #[inline]
+    pub fn push(&mut self, r: usize, c: usize, v: f64) {
+        debug_assert!(
+            r < self.nrows && c < self.ncols,
+            "({r}, {c}) outside the matrix"
+        );
+        self.entries.push((r as u32, c as u32, v));
+    }
+
+    /// The entries as added, (row, column, value).
+    pub fn iter(&self) -> impl Iterator<Item = (usize, usize, f64)> + '_ {
+        self.entries
+            .iter()
+            .map(|&(r, c, v)| (r as usize, c as usize, v))
+    }
+
+    /// The largest |value| of an entry as added.
+    pub fn max_abs(&self) -> f64 {
+        self.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()))
     }
 
     /// Adds `other` (or its transpose) with rows shifted by `row_offset` and
@@ -127,24 +162,87 @@ impl Triplets {
         scale: f64,
         transpose: bool,
     ) {
+        let rows = if transpose { other.ncols } else { other.nrows };
+        let cols = if transpose { other.nrows } else { other.ncols };
+        assert!(
+            row_offset + rows <= self.nrows && col_offset + cols <= self.ncols,
+            "a block outside the matrix"
+        );
+        let (dr, dc) = (row_offset as u32, col_offset as u32);
         self.entries.extend(other.entries.iter().map(|&(r, c, v)| {
             let (r, c) = if transpose { (c, r) } else { (r, c) };
-            (r + row_offset, c + col_offset, scale * v)
+            (r + dr, c + dc, scale * v)
         }));
     }
 
-    /// The compressed matrix (duplicates summed). Consumes the entries and
-    /// reuses their allocation for faer's triplets: assembly dominates the
-    /// peak memory (measured: at n = 128 on the shell the peak RSS is reached
-    /// in assembly, not in the factorisation), so no copy is kept.
+    /// The compressed matrix (duplicates summed, explicit zeros kept: the
+    /// pattern is the elements' connectivity whatever the values). Consumes
+    /// the entries and works in their allocation, so only the CSC arrays are
+    /// allocated beside them: an in-place bucket sort (American flag sort)
+    /// on column ranges of ~1/1024 of the columns, each bucket (small enough
+    /// for the cache) sorted by (column, row), then duplicates summed while
+    /// compacting to the front. The order in which an entry's duplicates
+    /// are summed is fixed by the input (deterministic), not necessarily the
+    /// order they were added in.
     pub fn into_sparse(self) -> SparseColMat<usize, f64> {
-        let t: Vec<Triplet<usize, usize, f64>> = self
-            .entries
-            .into_iter()
-            .map(|(r, c, v)| Triplet::new(r, c, v))
-            .collect();
-        SparseColMat::try_new_from_triplets(self.nrows, self.ncols, &t)
-            .expect("assembly produced indices inside the matrix")
+        let Triplets {
+            nrows,
+            ncols,
+            mut entries,
+        } = self;
+        let shift = (usize::BITS - (ncols >> 10).leading_zeros()) as usize;
+        let bucket = |e: &(u32, u32, f64)| (e.1 as usize) >> shift;
+        let n_buckets = (ncols >> shift) + 1;
+        let mut start = vec![0usize; n_buckets + 1];
+        for e in &entries {
+            start[bucket(e) + 1] += 1;
+        }
+        for b in 0..n_buckets {
+            start[b + 1] += start[b];
+        }
+        // Cycle each misplaced entry into its bucket's next free slot.
+        let mut next = start.clone();
+        for b in 0..n_buckets {
+            while next[b] < start[b + 1] {
+                let target = bucket(&entries[next[b]]);
+                if target == b {
+                    next[b] += 1;
+                } else {
+                    entries.swap(next[b], next[target]);
+                    next[target] += 1;
+                }
+            }
+        }
+        for b in 0..n_buckets {
+            entries[start[b]..start[b + 1]]
+                .sort_unstable_by_key(|e| ((e.1 as u64) << 32) | e.0 as u64);
+        }
+        drop((start, next));
+        // Sum duplicates, compact to the front, count per column.
+        let mut col_ptr = vec![0usize; ncols + 1];
+        let mut nnz = 0usize;
+        let mut k = 0usize;
+        while k < entries.len() {
+            let mut e = entries[k];
+            k += 1;
+            while k < entries.len() && entries[k].0 == e.0 && entries[k].1 == e.1 {
+                e.2 += entries[k].2;
+                k += 1;
+            }
+            col_ptr[e.1 as usize + 1] += 1;
+            entries[nnz] = e;
+            nnz += 1;
+        }
+        for j in 0..ncols {
+            col_ptr[j + 1] += col_ptr[j];
+        }
+        entries.truncate(nnz);
+        entries.shrink_to_fit();
+        let row_idx: Vec<usize> = entries.iter().map(|e| e.0 as usize).collect();
+        let values: Vec<f64> = entries.iter().map(|e| e.2).collect();
+        drop(entries);
+        let symbolic = SymbolicSparseColMat::new_checked(nrows, ncols, col_ptr, None, row_idx);
+        SparseColMat::new(symbolic, values)
     }
 }
 
@@ -162,7 +260,7 @@ pub fn assemble_bilinear(
     );
     let (nu, nv) = (trial.element.n_local(), test.element.n_local());
     let mut out = Triplets::new(test.n_dofs(), trial.n_dofs());
-    out.entries.reserve(mesh.n_triangles() * nu * nv);
+    out.reserve(mesh.n_triangles() * nu * nv);
     let mut local = [[0.0; MAX_LOCAL]; MAX_LOCAL];
     for t in 0..mesh.n_triangles() {
         let g = TriangleGeometry::new(mesh, t);
@@ -179,7 +277,7 @@ pub fn assemble_bilinear(
         let (cols, _) = trial.element_dofs(t);
         for i in 0..nv {
             for j in 0..nu {
-                out.entries.push((rows[i], cols[j], local[i][j]));
+                out.push(rows[i], cols[j], local[i][j]);
             }
         }
     }
@@ -324,13 +422,14 @@ pub fn eliminate(
     let mut entries = a.entries;
     // In place: the full matrix's allocation becomes the reduced one's.
     entries.retain_mut(|e| {
-        let (r, c, v) = *e;
+        let (r, c, v) = (e.0 as usize, e.1 as usize, e.2);
         let Some(ri) = rows.free_index[r] else {
             return false;
         };
         match cols.free_index[c] {
             Some(ci) => {
-                *e = (ri, ci, v);
+                // Free indices are below the full ones: 32 bits.
+                *e = (ri as u32, ci as u32, v);
                 true
             }
             None => {

@@ -126,7 +126,7 @@ fn primal_block(problem: &ContactProblem) -> faer::sparse::SparseColMat<usize, f
     for j in 0..np {
         for k in col_ptr[j]..col_ptr[j + 1] {
             if row_idx[k] < np {
-                t.entries.push((row_idx[k], j, values[k]));
+                t.push(row_idx[k], j, values[k]);
             }
         }
     }

@@ -259,7 +259,7 @@ fn stiffness_times(
     };
     let zero = [0.0; 3].map(obstacle_fem::expression::Expression::constant);
     let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, &zero);
-    let scale = a.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()));
+    let scale = a.max_abs();
     let mut x = vec![0.0; layout.n_total()];
     for (f, fl) in layout.fields.iter().enumerate() {
         let values = Space::new(mesh, fl.element).interpolate(|p| field(p)[f]);

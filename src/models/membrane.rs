@@ -407,10 +407,9 @@ impl ModelSystem for MembraneSystem<'_> {
                     let (g_upper, w_upper) =
                         self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
                     let m = self.n_rows();
-                    let lower_rows = c.entries.clone();
+                    let lower_rows = c.clone();
                     c.nrows = 2 * m;
-                    c.entries
-                        .extend(lower_rows.into_iter().map(|(r, col, v)| (r + m, col, -v)));
+                    c.add_block(&lower_rows, m, 0, -1.0, false);
                     g_vec.extend(g_upper.iter().zip(&c_shift).map(|(g, s)| -(g + s)));
                     weights.extend(w_upper);
                 }

@@ -602,20 +602,19 @@ pub fn assemble_shell_layout(
         let el = element_matrices(mesh, layout, &passes, t, chart, material, rho, load);
         let (u, psi) = element_globals(mesh, layout, t);
         if t == 0 {
-            a.entries
-                .reserve(mesh.n_triangles() * (u.len() * u.len() + 2 * psi.len() * u.len()));
+            a.reserve(mesh.n_triangles() * (u.len() * u.len() + 2 * psi.len() * u.len()));
         }
         for i in 0..el.n_u {
             f[u[i]] += el.load[i];
             for j in 0..el.n_u {
-                a.entries.push((u[i], u[j], el.stiffness[i * el.n_u + j]));
+                a.push(u[i], u[j], el.stiffness[i * el.n_u + j]);
             }
         }
         for (k, &row) in psi.iter().enumerate() {
             for j in 0..el.n_u {
                 let v = el.tangency[k][j];
-                a.entries.push((row, u[j], v));
-                a.entries.push((u[j], row, v));
+                a.push(row, u[j], v);
+                a.push(u[j], row, v);
             }
         }
     }
@@ -869,9 +868,7 @@ pub fn plane_constraint(
         }
         for k in 0..N_LOCAL {
             for (f, factor) in &terms {
-                c_full
-                    .entries
-                    .push((t, layout.index(*f, scalar[k]), factor * integrals[k]));
+                c_full.push(t, layout.index(*f, scalar[k]), factor * integrals[k]);
             }
         }
         let tri = mesh.triangles[t];
@@ -954,9 +951,7 @@ pub fn nodal_plane_constraint(
             let (dofs, n) = Space::new(mesh, field.element).element_dofs(t);
             for (i, row) in rows.iter().enumerate() {
                 for k in 0..n {
-                    c_full
-                        .entries
-                        .push((tri[i], field.offset + dofs[k], row[k]));
+                    c_full.push(tri[i], field.offset + dofs[k], row[k]);
                 }
             }
         }
@@ -1154,7 +1149,7 @@ mod tests {
         ];
         for (chart, x) in cases {
             let (a, _) = assemble_shell_full(&mesh, &chart, &material(), 1e3, [0.0; 3]);
-            let scale = a.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()));
+            let scale = a.max_abs();
             let ax = crate::assembly::mat_vec(&a.into_sparse(), &x);
             let worst = ax.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             assert!(worst < 1e-12 * scale, "{chart:?}: |K U_rigid| = {worst:e}");
