@@ -24,6 +24,31 @@ thread_local! {
     static THREADS: std::cell::Cell<usize> = const { std::cell::Cell::new(1) };
 }
 
+/// Lets the process keep the memory it frees for its next allocations
+/// instead of returning it to the system (glibc's `mallopt`): every Newton
+/// step allocates and frees factors of the same sizes (hundreds of MB), and
+/// glibc serves blocks above its mmap threshold (≤ 32 MB) with fresh pages
+/// that the kernel must fault in and zero each time. Measured on the shell,
+/// active set at n = 128 (issue 13): system time 11–13 s → 1.5 s, solver
+/// 40–44 s → 31 s, peak RSS 1680 → 1795 MB. Returns whether both settings
+/// were accepted (other C libraries: nothing is changed, false).
+pub fn keep_freed_memory() -> bool {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // Blocks up to 2 GB come from the heap; the heap's top is never
+        // trimmed (−1 is the largest threshold).
+        // SAFETY: mallopt only sets glibc's allocation parameters.
+        unsafe {
+            libc::mallopt(libc::M_MMAP_THRESHOLD, i32::MAX) == 1
+                && libc::mallopt(libc::M_TRIM_THRESHOLD, -1) == 1
+        }
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    {
+        false
+    }
+}
+
 /// Threads (faer's `Par::rayon`) for the LDLᵀ factorisations and solves made
 /// on the calling thread from now on (`solver.threads`; 1 or 0: sequential).
 /// Per thread, so concurrent runs (tests, `study --jobs`) keep their own.
@@ -133,14 +158,13 @@ enum RefinementMatrix {
 }
 
 impl RefinementMatrix {
-    fn of(
-        a: &SparseColMat<usize, f64>,
-        pattern: &Arc<SymbolicSparseColMat<usize>>,
-        kind: MatrixKind,
-    ) -> Self {
+    fn of(a: &SparseColMat<usize, f64>, pattern: &AnalysedPattern, kind: MatrixKind) -> Self {
         match kind {
             MatrixKind::General => RefinementMatrix::General {
-                pattern: pattern.clone(),
+                pattern: match pattern {
+                    AnalysedPattern::Kept(p) => p.clone(),
+                    AnalysedPattern::Fingerprint { .. } => Arc::new(pattern_of(a)),
+                },
                 values: (0..a.ncols())
                     .flat_map(|j| a.val_of_col(j))
                     .copied()
@@ -472,8 +496,8 @@ enum SymbolicAnalysis {
 /// factorised matrix is the Schur complement S, whose pattern is fixed by
 /// the pattern of A: the counts are those of S.
 pub struct ReusableFactorization {
-    /// The analysed pattern (compact), shared with condensed factorisations.
-    pattern: Arc<SymbolicSparseColMat<usize>>,
+    /// What each matrix is checked against: the analysed pattern.
+    pattern: AnalysedPattern,
     /// The factoriser of A, or of S when condensed.
     direct: DirectFactorizer,
     condensation: Option<Arc<CondensationPlan>>,
@@ -539,7 +563,7 @@ impl ReusableFactorization {
             }
         };
         Ok(ReusableFactorization {
-            pattern: Arc::new(pattern_of(a)),
+            pattern: AnalysedPattern::of(a, kind),
             direct,
             condensation,
             kind,
@@ -568,7 +592,7 @@ impl ReusableFactorization {
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
-        if !has_pattern(a, &self.pattern) {
+        if !self.pattern.matches(a) {
             return Err(Error::numerical(
                 what,
                 "sparsity pattern",
@@ -576,16 +600,20 @@ impl ReusableFactorization {
             ));
         }
         let Some(plan) = &self.condensation else {
-            return self.direct.factorize_and_solve(a, b, what);
+            return self
+                .direct
+                .factorize_and_solve(Shared::Borrowed(a), b, what);
         };
         check_entries(a, what)?;
         let (s, local) = plan.condense(a, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
-        let Ok((mut schur, x_r, _)) = self.direct.factorize_and_solve(&s, &b_s, what) else {
+        // S moves into its factorisation (kept there for the refinement).
+        let s = Shared::Owned(Arc::new(s));
+        let Ok((mut schur, x_r, _)) = self.direct.factorize_and_solve(s, &b_s, what) else {
             // No LDLᵀ of S met its accuracy (S takes no LU: at the shell's
             // n = 256 it ran out of memory where the whole matrix's LDLᵀ
             // holds): A itself.
-            drop((s, local, b_s));
+            drop((local, b_s));
             return self.factorize_whole(a, b, what);
         };
         // Only for many solves: the few-solves (AMD) order regularises pivots.
@@ -636,7 +664,8 @@ impl ReusableFactorization {
         self.condensation = None;
         self.direct = DirectFactorizer::analyze(a, self.kind, self.solves, what)?;
         self.direct.symbolic_analyses += analyses;
-        self.direct.factorize_and_solve(a, b, what)
+        self.direct
+            .factorize_and_solve(Shared::Borrowed(a), b, what)
     }
 
     /// The factorisation in use: "Cholesky", "LDLᵀ" or "LU" (after a
@@ -711,10 +740,11 @@ impl DirectFactorizer {
     /// checked solve of A x = b (see [`ReusableFactorization::factorize_and_solve`]).
     fn factorize_and_solve(
         &mut self,
-        a: &SparseColMat<usize, f64>,
+        matrix: Shared<'_>,
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
+        let a: &SparseColMat<usize, f64> = &matrix;
         check_entries(a, what)?;
         parallelism();
         let f = match &self.symbolic {
@@ -738,7 +768,7 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(symbolic.clone(), a, *n_primal, what)
+                let solved = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), *n_primal, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
@@ -757,7 +787,7 @@ impl DirectFactorizer {
                 }
                 let why = "LDLᵀ with positive pivots missed its backward error".to_string();
                 let lu = self.lu_fallback(a, &why, what)?;
-                return self.retry_with(lu, why, a, b, what);
+                return self.retry_with(lu, why, matrix.clone(), b, what);
             }
             SymbolicAnalysis::Ldlt {
                 symbolic,
@@ -765,7 +795,7 @@ impl DirectFactorizer {
                 order,
             } => {
                 let (n_primal, order) = (*n_primal, *order);
-                let ldlt = RegularizedLdlt::new(symbolic.clone(), a, n_primal, what);
+                let ldlt = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), n_primal, what);
                 let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
                     let (x, quality) = check_solve(a, &f, b, what)?;
                     Ok((f, x, quality))
@@ -798,7 +828,7 @@ impl DirectFactorizer {
                     },
                     Solves::Many => self.lu_fallback(a, &why, what)?,
                 };
-                return self.retry_with(next, why, a, b, what);
+                return self.retry_with(next, why, matrix.clone(), b, what);
             }
             SymbolicAnalysis::Llt(symbolic) => Factorization::Cholesky(
                 Llt::try_new_with_symbolic(symbolic.clone(), a.as_ref(), Side::Lower).map_err(
@@ -830,7 +860,7 @@ impl DirectFactorizer {
                     n_primal: n,
                     order: Solves::Few,
                 };
-                self.retry_with(ldlt, why, a, b, what)
+                self.retry_with(ldlt, why, matrix.clone(), b, what)
             }
             Err(e) => Err(self.naming_fallbacks(e)),
         }
@@ -842,7 +872,7 @@ impl DirectFactorizer {
         &mut self,
         symbolic: SymbolicAnalysis,
         why: String,
-        a: &SparseColMat<usize, f64>,
+        a: Shared<'_>,
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
@@ -906,13 +936,69 @@ impl DirectFactorizer {
     }
 }
 
-/// Whether `a` has the `pattern`, compared column by column (no copy of
-/// `a`'s pattern: it is as large as A's values).
-fn has_pattern(a: &SparseColMat<usize, f64>, pattern: &SymbolicSparseColMat<usize>) -> bool {
-    a.nrows() == pattern.nrows()
-        && a.ncols() == pattern.ncols()
-        && (0..a.ncols())
-            .all(|j| a.symbolic().row_idx_of_col_raw(j) == pattern.row_idx_of_col_raw(j))
+/// The pattern a [`ReusableFactorization`] was analysed for, as its
+/// refactorisations check it: kept whole when a condensed factorisation's
+/// refinement reads A's values on it (a general matrix), else only its
+/// fingerprint. The copy was the largest avoidable array of the shell's
+/// active set at n = 256 (75M row indices of the Newton matrix, 0.6 GB).
+enum AnalysedPattern {
+    Kept(Arc<SymbolicSparseColMat<usize>>),
+    /// Order and a 64-bit hash of the column lengths and row indices:
+    /// a different pattern passes only on a hash collision (the check is
+    /// against calling with the wrong matrix, not against an adversary).
+    Fingerprint {
+        nrows: usize,
+        ncols: usize,
+        hash: u64,
+    },
+}
+
+impl AnalysedPattern {
+    fn of(a: &SparseColMat<usize, f64>, kind: MatrixKind) -> Self {
+        match kind {
+            MatrixKind::General => AnalysedPattern::Kept(Arc::new(pattern_of(a))),
+            _ => AnalysedPattern::Fingerprint {
+                nrows: a.nrows(),
+                ncols: a.ncols(),
+                hash: pattern_hash(a),
+            },
+        }
+    }
+
+    /// Whether `a` has the pattern (compared column by column when kept:
+    /// no copy of `a`'s pattern, which is as large as A's values).
+    fn matches(&self, a: &SparseColMat<usize, f64>) -> bool {
+        match self {
+            AnalysedPattern::Kept(pattern) => {
+                a.nrows() == pattern.nrows()
+                    && a.ncols() == pattern.ncols()
+                    && (0..a.ncols()).all(|j| {
+                        a.symbolic().row_idx_of_col_raw(j) == pattern.row_idx_of_col_raw(j)
+                    })
+            }
+            &AnalysedPattern::Fingerprint { nrows, ncols, hash } => {
+                a.nrows() == nrows && a.ncols() == ncols && pattern_hash(a) == hash
+            }
+        }
+    }
+
+    fn nrows(&self) -> usize {
+        match self {
+            AnalysedPattern::Kept(pattern) => pattern.nrows(),
+            AnalysedPattern::Fingerprint { nrows, .. } => *nrows,
+        }
+    }
+}
+
+/// A 64-bit hash of `a`'s pattern (FxHash's multiply-rotate step over each
+/// column's length and row indices: one pass, memory speed).
+fn pattern_hash(a: &SparseColMat<usize, f64>) -> u64 {
+    let step = |h: u64, x: u64| (h.rotate_left(5) ^ x).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    (0..a.ncols()).fold(0u64, |h, j| {
+        let rows = a.symbolic().row_idx_of_col_raw(j);
+        rows.iter()
+            .fold(step(h, rows.len() as u64), |h, &i| step(h, i as u64))
+    })
 }
 
 /// The pattern of `a` in compact form.
@@ -1098,6 +1184,35 @@ const BACKWARD_ACCEPTED: f64 = 1e-12;
 /// Refinement steps at most; they stop earlier at round-off level.
 const MAX_REFINEMENT: usize = 6;
 
+/// A matrix given to a factorisation: borrowed from the caller, or owned
+/// (S of a condensed factorisation) and then shared with the LDLᵀ that
+/// keeps it instead of copying it.
+#[derive(Clone)]
+enum Shared<'a> {
+    Borrowed(&'a SparseColMat<usize, f64>),
+    Owned(Arc<SparseColMat<usize, f64>>),
+}
+
+impl Shared<'_> {
+    /// The matrix to keep: a copy when borrowed.
+    fn to_arc(&self) -> Arc<SparseColMat<usize, f64>> {
+        match self {
+            Shared::Borrowed(a) => Arc::new((*a).clone()),
+            Shared::Owned(a) => Arc::clone(a),
+        }
+    }
+}
+
+impl std::ops::Deref for Shared<'_> {
+    type Target = SparseColMat<usize, f64>;
+    fn deref(&self) -> &Self::Target {
+        match self {
+            Shared::Borrowed(a) => a,
+            Shared::Owned(a) => a,
+        }
+    }
+}
+
 /// LDLᵀ with signed dynamic regularisation (+ on primal pivots, − on
 /// multiplier pivots) for symmetric saddle-point matrices, followed by
 /// iterative refinement against the unperturbed matrix in every solve.
@@ -1113,7 +1228,9 @@ pub struct RegularizedLdlt {
     values: Vec<f64>,
     /// Symmetric equilibration D: the factors are those of D A D.
     scale: Vec<f64>,
-    matrix: SparseColMat<usize, f64>,
+    /// The matrix itself, for the refinement (shared with the caller's
+    /// copy when there is one: a condensed factorisation's S exists once).
+    matrix: Arc<SparseColMat<usize, f64>>,
     norm: f64,
     /// Solves skip the refinement against this matrix: set only inside a
     /// condensed factorisation (which refines against A anyway) when a test
@@ -1124,10 +1241,11 @@ pub struct RegularizedLdlt {
 impl RegularizedLdlt {
     fn new(
         symbolic: Arc<SymbolicCholesky<usize>>,
-        a: &SparseColMat<usize, f64>,
+        matrix: Arc<SparseColMat<usize, f64>>,
         n_primal: usize,
         what: &str,
     ) -> Result<Self> {
+        let a = &*matrix;
         let n = a.nrows();
         let scale = symmetric_equilibration(a);
         // D A D: A's pattern with scaled values (a copy of the values only).
@@ -1165,7 +1283,7 @@ impl RegularizedLdlt {
             values,
             scale,
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
-            matrix: a.clone(),
+            matrix,
             raw_solves_suffice: false,
         })
     }

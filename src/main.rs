@@ -245,6 +245,8 @@ fn bench(command: BenchCommand) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    // Every Newton step allocates and frees factors of the same sizes.
+    obstacle_fem::linalg::keep_freed_memory();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
