@@ -355,7 +355,24 @@ impl SolveQuality {
     };
 
     fn of(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64]) -> Self {
-        let size = norm_inf(&residual(a, x, b));
+        Self::with_product(a, x, b, None)
+    }
+
+    /// [`SolveQuality::of`], from A x when the solve's refinement computed it
+    /// (one product with A less per factorisation).
+    fn with_product(
+        a: &SparseColMat<usize, f64>,
+        x: &[f64],
+        b: &[f64],
+        ax: Option<&[f64]>,
+    ) -> Self {
+        let size = match ax {
+            Some(ax) => b
+                .iter()
+                .zip(ax)
+                .fold(0.0f64, |m, (bi, ai)| m.max((bi - ai).abs())),
+            None => norm_inf(&residual(a, x, b)),
+        };
         SolveQuality {
             relative: size / norm_inf(b),
             backward: size / (norm_inf(a.val()) * norm_inf(x) + norm_inf(b)),
@@ -388,8 +405,16 @@ fn check_solve(
         return Ok((vec![0.0; b.len()], quality));
     }
     let mut x = b.to_vec();
-    f.solve_in_place(&mut x);
-    let quality = judge_solve(a, &x, b, what)?;
+    // An LDLᵀ refines against all of A: its last product is the judge's
+    // (a condensed one reads A's lower triangle only; judged on all of A).
+    let ax = match f {
+        Factorization::Ldlt(_) => f.solve_with_product(&mut x),
+        _ => {
+            f.solve_in_place(&mut x);
+            None
+        }
+    };
+    let quality = judge_solve(a, &x, b, ax.as_deref(), what)?;
     Ok((x, quality))
 }
 
@@ -399,6 +424,7 @@ fn judge_solve(
     a: &SparseColMat<usize, f64>,
     x: &[f64],
     b: &[f64],
+    ax: Option<&[f64]>,
     what: &str,
 ) -> Result<SolveQuality> {
     if x.iter().any(|v| !v.is_finite()) {
@@ -408,7 +434,7 @@ fn judge_solve(
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let quality = SolveQuality::of(a, x, b);
+    let quality = SolveQuality::with_product(a, x, b, ax);
     let rel = quality.relative;
     if rel > 1e-6 {
         return Err(Error::numerical(
@@ -634,11 +660,14 @@ impl ReusableFactorization {
             condensed.raw_solve(d, false)
         });
         let f = Factorization::Condensed(Box::new(condensed));
-        // Judged on A itself: the local eliminations are not refined.
+        // Judged on A itself, all of it: the local eliminations are not
+        // refined, and the refinement's product reads A's lower triangle
+        // only (A's round-off asymmetry moved the shell's first residual at
+        // n = 128 from 2.6e-9 to 3.3e-9, too near the acceptance bounds).
         let checked = if norm_inf(b) == 0.0 {
             check_solve(a, &f, b, what)
         } else {
-            judge_solve(a, &x, b, what).map(|q| (x, q))
+            judge_solve(a, &x, b, None, what).map(|q| (x, q))
         };
         if let Ok((x, quality)) = checked {
             if quality.accepted(CONDENSED_ACCEPTED) {
