@@ -219,6 +219,11 @@ pub fn run_case(
             "factorized_order".into(),
             factorizer.factorized_order().to_string(),
         ));
+        // More than one analysis: the factorisation took a fallback.
+        f.push((
+            "symbolic_analyses".into(),
+            factorizer.symbolic_analyses().to_string(),
+        ));
         f.push(("solve_seconds".into(), format!("{solve:e}")));
         f.push(("seconds".into(), format!("{factor_and_solve:e}")));
     } else {
