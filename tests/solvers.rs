@@ -768,3 +768,13 @@ fn the_entry_point_runs_every_method_and_the_linear_solve() {
         assert!(r.x == reports[0].x);
     }
 }
+
+/// `main` keeps freed memory for the next factorisation (glibc's mallopt);
+/// glibc versions that cap the mmap threshold would refuse the setting and
+/// every Newton step would fault in fresh pages again (issue 13: 12.5 s of
+/// system time at the shell's n = 128).
+#[test]
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn glibc_accepts_the_keep_freed_memory_settings() {
+    assert!(obstacle_fem::linalg::keep_freed_memory());
+}
