@@ -140,13 +140,6 @@ impl Triplets {
         self.entries.push((r as u32, c as u32, v));
     }
 
-    /// The entries as added, (row, column, value).
-    pub fn iter(&self) -> impl Iterator<Item = (usize, usize, f64)> + '_ {
-        self.entries
-            .iter()
-            .map(|&(r, c, v)| (r as usize, c as usize, v))
-    }
-
     /// The largest |value| of an entry as added.
     pub fn max_abs(&self) -> f64 {
         self.entries.iter().fold(0.0f64, |m, e| m.max(e.2.abs()))

@@ -160,19 +160,20 @@ enum RefinementMatrix {
 }
 
 impl RefinementMatrix {
-    fn of(a: &SparseColMat<usize, f64>, pattern: &AnalysedPattern, kind: MatrixKind) -> Self {
-        match kind {
-            MatrixKind::General => RefinementMatrix::General {
-                pattern: match pattern {
-                    AnalysedPattern::Kept(p) => p.clone(),
-                    AnalysedPattern::Fingerprint { .. } => Arc::new(pattern_of(a)),
-                },
+    /// A's values on the kept pattern (a general matrix's), else A's lower
+    /// triangle (a symmetric one's: its pattern is only fingerprinted).
+    fn of(a: &SparseColMat<usize, f64>, pattern: &AnalysedPattern) -> Self {
+        match pattern {
+            AnalysedPattern::Kept(pattern) => RefinementMatrix::General {
+                pattern: pattern.clone(),
                 values: (0..a.ncols())
                     .flat_map(|j| a.val_of_col(j))
                     .copied()
                     .collect(),
             },
-            _ => RefinementMatrix::Symmetric(SymmetricLower::of(a)),
+            AnalysedPattern::Fingerprint { .. } => {
+                RefinementMatrix::Symmetric(SymmetricLower::of(a))
+            }
         }
     }
 
@@ -368,13 +369,10 @@ impl SolveQuality {
         b: &[f64],
         ax: Option<&[f64]>,
     ) -> Self {
-        let size = match ax {
-            Some(ax) => b
-                .iter()
-                .zip(ax)
-                .fold(0.0f64, |m, (bi, ai)| m.max((bi - ai).abs())),
-            None => norm_inf(&residual(a, x, b)),
-        };
+        let size = norm_inf(&match ax {
+            Some(ax) => difference(b, ax),
+            None => residual(a, x, b),
+        });
         SolveQuality {
             relative: size / norm_inf(b),
             backward: size / (norm_inf(a.val()) * norm_inf(x) + norm_inf(b)),
@@ -654,7 +652,7 @@ impl ReusableFactorization {
             plan: plan.clone(),
             local,
             schur,
-            matrix: RefinementMatrix::of(a, &self.pattern, self.kind),
+            matrix: RefinementMatrix::of(a, &self.pattern),
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
         };
         let product = |v: &[f64]| condensed.matrix.product(v);
