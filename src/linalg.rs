@@ -74,6 +74,118 @@ fn parallelism() -> Par {
 pub use condensed::InteriorGroups;
 use condensed::{CondensationPlan, LocalFactors};
 
+/// How a matrix given to this module is stored. Every factorisation of a
+/// symmetric kind reads the lower triangle only (`Side::Lower`), so a
+/// symmetric matrix may be given by its lower triangle alone (no stored
+/// entry above the diagonal); its products then imply the upper one. Half
+/// the memory: the active set's Newton matrix is given so (issue 13).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Storage {
+    Whole,
+    LowerTriangle,
+}
+
+impl Storage {
+    /// A matrix of a symmetric kind without an entry above the diagonal is
+    /// its lower triangle; anything else is whole (a general matrix always).
+    fn of(a: SparseColMatRef<'_, usize, f64>, kind: MatrixKind) -> Self {
+        let lower = kind != MatrixKind::General
+            && (0..a.ncols()).all(|j| a.symbolic().row_idx_of_col(j).all(|i| i >= j));
+        match lower {
+            true => Storage::LowerTriangle,
+            false => Storage::Whole,
+        }
+    }
+
+    /// y = A x.
+    fn product(self, a: SparseColMatRef<'_, usize, f64>, x: &[f64]) -> Vec<f64> {
+        let s = a.symbolic();
+        match self {
+            Storage::Whole => mat_vec_ref(a, x),
+            Storage::LowerTriangle => lower_product(s.col_ptr(), s.row_idx(), a.val(), x),
+        }
+    }
+
+    /// r = b − A x.
+    fn residual(self, a: SparseColMatRef<'_, usize, f64>, x: &[f64], b: &[f64]) -> Vec<f64> {
+        difference(b, &self.product(a, x))
+    }
+
+    /// The matrix with both triangles (a copy of the lower triangle's
+    /// mirror added), for LU, which reads every entry.
+    fn whole(self, a: &SparseColMat<usize, f64>) -> std::borrow::Cow<'_, SparseColMat<usize, f64>> {
+        if self == Storage::Whole {
+            return std::borrow::Cow::Borrowed(a);
+        }
+        let n = a.ncols();
+        let s = a.symbolic();
+        let mut columns: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n];
+        for j in 0..n {
+            for (i, &v) in s.row_idx_of_col(j).zip(a.val_of_col(j)) {
+                columns[j].push((i, v));
+                if i != j {
+                    columns[i].push((j, v));
+                }
+            }
+        }
+        let (mut col_ptr, mut row_idx, mut values) = (vec![0], Vec::new(), Vec::new());
+        for mut column in columns {
+            column.sort_unstable_by_key(|e| e.0);
+            for (i, v) in column {
+                row_idx.push(i);
+                values.push(v);
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        std::borrow::Cow::Owned(SparseColMat::new(symbolic, values))
+    }
+}
+
+/// A index stored in a column's row list (usize, or u32 where memory counts).
+trait RowIndex: Copy {
+    fn get(self) -> usize;
+}
+
+impl RowIndex for usize {
+    fn get(self) -> usize {
+        self
+    }
+}
+
+impl RowIndex for u32 {
+    fn get(self) -> usize {
+        self as usize
+    }
+}
+
+/// y = A x for a symmetric A given by its lower triangle (CSC): each entry
+/// below the diagonal is read once, for both of its places; entries above
+/// the diagonal (there are none in this storage) would be ignored.
+fn lower_product<R: RowIndex>(
+    col_ptr: &[usize],
+    rows: &[R],
+    values: &[f64],
+    x: &[f64],
+) -> Vec<f64> {
+    let mut y = vec![0.0; x.len()];
+    for (j, &xj) in x.iter().enumerate() {
+        let range = col_ptr[j]..col_ptr[j + 1];
+        let mut upper = 0.0;
+        for (&i, &v) in rows[range.clone()].iter().zip(&values[range]) {
+            let i = i.get();
+            if i > j {
+                y[i] += v * xj;
+                upper += v * x[i];
+            } else if i == j {
+                upper += v * xj;
+            }
+        }
+        y[j] += upper;
+    }
+    y
+}
+
 /// What the matrix is known to be; picks the factorisation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MatrixKind {
@@ -149,6 +261,8 @@ pub struct CondensedFactorization {
 
 /// The matrix a condensed factorisation refines its solves against.
 enum RefinementMatrix {
+    /// The caller's own matrix, shared ([`ReusableFactorization::factorize_and_solve_shared`]).
+    Shared(Arc<SparseColMat<usize, f64>>, Storage),
     /// A symmetric matrix by its lower triangle ([`SymmetricLower`]).
     Symmetric(SymmetricLower),
     /// Any other: A's values on its pattern (shared with the
@@ -162,7 +276,10 @@ enum RefinementMatrix {
 impl RefinementMatrix {
     /// A's values on the kept pattern (a general matrix's), else A's lower
     /// triangle (a symmetric one's: its pattern is only fingerprinted).
-    fn of(a: &SparseColMat<usize, f64>, pattern: &AnalysedPattern) -> Self {
+    fn of(a: &Shared<'_>, kind: MatrixKind, pattern: &AnalysedPattern) -> Self {
+        if let Shared::Owned(a) = a {
+            return RefinementMatrix::Shared(a.clone(), Storage::of(a.as_ref().as_ref(), kind));
+        }
         match pattern {
             AnalysedPattern::Kept(pattern) => RefinementMatrix::General {
                 pattern: pattern.clone(),
@@ -180,6 +297,7 @@ impl RefinementMatrix {
     /// A x.
     fn product(&self, x: &[f64]) -> Vec<f64> {
         match self {
+            RefinementMatrix::Shared(a, storage) => storage.product(a.as_ref().as_ref(), x),
             RefinementMatrix::Symmetric(lower) => lower.product(x),
             RefinementMatrix::General { pattern, values } => {
                 mat_vec_ref(SparseColMatRef::new((**pattern).as_ref(), values), x)
@@ -188,13 +306,12 @@ impl RefinementMatrix {
     }
 }
 
-/// A symmetric matrix by its diagonal and strictly lower triangle (CSC,
-/// 32-bit rows): y = A x reads each off-diagonal entry once, for both of
-/// its places. Half the memory of A, and of the traffic of the product
-/// that refines every condensed solve (Uzawa: one per iteration). The
-/// upper triangle is not read, as in the LDLᵀ (`Side::Lower`).
+/// A symmetric matrix by its lower triangle (CSC, 32-bit rows): y = A x
+/// ([`lower_product`]) reads each off-diagonal entry once, for both of its
+/// places. Half the memory of A, and of the traffic of the product that
+/// refines every condensed solve (Uzawa: one per iteration). The upper
+/// triangle is not read, as in the LDLᵀ (`Side::Lower`).
 struct SymmetricLower {
-    diagonal: Vec<f64>,
     col_ptr: Vec<usize>,
     rows: Vec<u32>,
     values: Vec<f64>,
@@ -207,15 +324,17 @@ impl SymmetricLower {
             u32::try_from(n).is_ok(),
             "a matrix of order {n}: rows are 32-bit"
         );
-        let (mut diagonal, mut col_ptr) = (vec![0.0; n], Vec::with_capacity(n + 1));
-        let (mut rows, mut values) = (Vec::new(), Vec::new());
+        // Sized exactly: grown by doubling, the arrays and their copies
+        // raised the peak by their own size again.
+        let len = (0..n)
+            .map(|j| a.symbolic().row_idx_of_col(j).filter(|&i| i >= j).count())
+            .sum();
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let (mut rows, mut values) = (Vec::with_capacity(len), Vec::with_capacity(len));
         col_ptr.push(0);
-        for (j, d) in diagonal.iter_mut().enumerate() {
-            let column = a.symbolic().row_idx_of_col(j).zip(a.val_of_col(j));
-            for (i, &v) in column {
-                if i == j {
-                    *d += v;
-                } else if i > j {
+        for j in 0..n {
+            for (i, &v) in a.symbolic().row_idx_of_col(j).zip(a.val_of_col(j)) {
+                if i >= j {
                     rows.push(i as u32);
                     values.push(v);
                 }
@@ -223,7 +342,6 @@ impl SymmetricLower {
             col_ptr.push(rows.len());
         }
         SymmetricLower {
-            diagonal,
             col_ptr,
             rows,
             values,
@@ -231,18 +349,7 @@ impl SymmetricLower {
     }
 
     fn product(&self, x: &[f64]) -> Vec<f64> {
-        let mut y: Vec<f64> = self.diagonal.iter().zip(x).map(|(d, xi)| d * xi).collect();
-        for (j, &xj) in x.iter().enumerate() {
-            let range = self.col_ptr[j]..self.col_ptr[j + 1];
-            let mut upper = 0.0;
-            for (&i, &v) in self.rows[range.clone()].iter().zip(&self.values[range]) {
-                let i = i as usize;
-                y[i] += v * xj;
-                upper += v * x[i];
-            }
-            y[j] += upper;
-        }
-        y
+        lower_product(&self.col_ptr, &self.rows, &self.values, x)
     }
 }
 
@@ -331,17 +438,6 @@ pub fn factorize_checked_with(
     Ok(f)
 }
 
-/// Relative residual ‖Ax − b‖∞/‖b‖∞ of a factorisation on the fixed test
-/// right-hand side of [`factorize_checked`]; an error when the solve is not
-/// finite or the residual is above 1e-6.
-pub fn check_test_solve(
-    a: &SparseColMat<usize, f64>,
-    f: &Factorization,
-    what: &str,
-) -> Result<f64> {
-    check_solve(a, f, &test_rhs(a.nrows()), what).map(|(_, q)| q.relative)
-}
-
 /// How well a solution x of A x = b (b ≠ 0) satisfies it.
 #[derive(Debug, Clone, Copy)]
 struct SolveQuality {
@@ -357,21 +453,22 @@ impl SolveQuality {
         backward: 0.0,
     };
 
-    fn of(a: &SparseColMat<usize, f64>, x: &[f64], b: &[f64]) -> Self {
-        Self::with_product(a, x, b, None)
+    fn of(a: &SparseColMat<usize, f64>, storage: Storage, x: &[f64], b: &[f64]) -> Self {
+        Self::with_product(a, storage, x, b, None)
     }
 
     /// [`SolveQuality::of`], from A x when the solve's refinement computed it
     /// (one product with A less per factorisation).
     fn with_product(
         a: &SparseColMat<usize, f64>,
+        storage: Storage,
         x: &[f64],
         b: &[f64],
         ax: Option<&[f64]>,
     ) -> Self {
         let size = norm_inf(&match ax {
             Some(ax) => difference(b, ax),
-            None => residual(a, x, b),
+            None => storage.residual(a.as_ref(), x, b),
         });
         SolveQuality {
             relative: size / norm_inf(b),
@@ -386,11 +483,12 @@ impl SolveQuality {
     }
 }
 
-/// Solves A x = b with `f` and checks it as [`check_test_solve`] does
-/// (b = 0: on the test right-hand side instead, x = 0). Returns x and how
-/// well it solves.
+/// Solves A x = b with `f` and checks it ([`judge_solve`]; b = 0: on a
+/// fixed test right-hand side instead, x = 0). Returns x and how well it
+/// solves.
 fn check_solve(
     a: &SparseColMat<usize, f64>,
+    storage: Storage,
     f: &Factorization,
     b: &[f64],
     what: &str,
@@ -401,7 +499,7 @@ fn check_solve(
         return Ok((Vec::new(), SolveQuality::EXACT));
     }
     if norm_inf(b) == 0.0 {
-        let quality = check_solve(a, f, &test_rhs(a.nrows()), what)?.1;
+        let quality = check_solve(a, storage, f, &test_rhs(a.nrows()), what)?.1;
         return Ok((vec![0.0; b.len()], quality));
     }
     let mut x = b.to_vec();
@@ -414,7 +512,7 @@ fn check_solve(
             None
         }
     };
-    let quality = judge_solve(a, &x, b, ax.as_deref(), what)?;
+    let quality = judge_solve(a, storage, &x, b, ax.as_deref(), what)?;
     Ok((x, quality))
 }
 
@@ -422,6 +520,7 @@ fn check_solve(
 /// relative residual is above 1e-6.
 fn judge_solve(
     a: &SparseColMat<usize, f64>,
+    storage: Storage,
     x: &[f64],
     b: &[f64],
     ax: Option<&[f64]>,
@@ -434,7 +533,7 @@ fn judge_solve(
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let quality = SolveQuality::with_product(a, x, b, ax);
+    let quality = SolveQuality::with_product(a, storage, x, b, ax);
     let rel = quality.relative;
     if rel > 1e-6 {
         return Err(Error::numerical(
@@ -473,20 +572,23 @@ fn difference(b: &[f64], a: &[f64]) -> Vec<f64> {
 }
 
 /// `steps` steps of iterative refinement x ← x + A⁻¹(b − A x) of a solution
-/// x of A x = b; returns ‖b − A x‖∞/‖b‖∞ of the final x (‖·‖ for b = 0).
+/// x of A x = b (A of `kind`: a symmetric one may be its lower triangle);
+/// returns ‖b − A x‖∞/‖b‖∞ of the final x (‖·‖ for b = 0).
 pub fn refine(
     a: &SparseColMat<usize, f64>,
+    kind: MatrixKind,
     f: &Factorization,
     b: &[f64],
     x: &mut [f64],
     steps: usize,
 ) -> f64 {
-    let mut r = residual(a, x, b);
+    let storage = Storage::of(a.as_ref(), kind);
+    let mut r = storage.residual(a.as_ref(), x, b);
     for _ in 0..steps {
         let mut d = r;
         f.solve_in_place(&mut d);
         x.iter_mut().zip(&d).for_each(|(xi, dx)| *xi += dx);
-        r = residual(a, x, b);
+        r = storage.residual(a.as_ref(), x, b);
     }
     let scale = norm_inf(b);
     if scale > 0.0 {
@@ -535,6 +637,9 @@ pub struct ReusableFactorization {
 /// The symbolic analysis of one matrix pattern and its counts.
 struct DirectFactorizer {
     symbolic: SymbolicAnalysis,
+    /// The kind of the matrices it is given (a symmetric one may be its
+    /// lower triangle, [`Storage`]).
+    kind: MatrixKind,
     symbolic_analyses: usize,
     numeric_factorizations: usize,
     /// Why each fallback was taken, in order (named by a failure of the
@@ -618,6 +723,29 @@ impl ReusableFactorization {
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
+        self.factorize_and_solve_matrix(Shared::Borrowed(a), b, what)
+    }
+
+    /// [`ReusableFactorization::factorize_and_solve`] of a matrix the
+    /// factorisation keeps a share of for its refinement instead of a copy
+    /// (the active set's Newton matrix: 0.1 GB per step at the shell's
+    /// n = 128); the caller changes its values only after dropping it.
+    pub fn factorize_and_solve_shared(
+        &mut self,
+        a: &Arc<SparseColMat<usize, f64>>,
+        b: &[f64],
+        what: &str,
+    ) -> Result<(Factorization, Vec<f64>, f64)> {
+        self.factorize_and_solve_matrix(Shared::Owned(a.clone()), b, what)
+    }
+
+    fn factorize_and_solve_matrix(
+        &mut self,
+        matrix: Shared<'_>,
+        b: &[f64],
+        what: &str,
+    ) -> Result<(Factorization, Vec<f64>, f64)> {
+        let a: &SparseColMat<usize, f64> = &matrix;
         if !self.pattern.matches(a) {
             return Err(Error::numerical(
                 what,
@@ -626,9 +754,7 @@ impl ReusableFactorization {
             ));
         }
         let Some(plan) = &self.condensation else {
-            return self
-                .direct
-                .factorize_and_solve(Shared::Borrowed(a), b, what);
+            return self.direct.factorize_and_solve(matrix.clone(), b, what);
         };
         check_entries(a, what)?;
         let (s, local) = plan.condense(a, what)?;
@@ -640,7 +766,7 @@ impl ReusableFactorization {
             // n = 256 it ran out of memory where the whole matrix's LDLᵀ
             // holds): A itself.
             drop((local, b_s));
-            return self.factorize_whole(a, b, what);
+            return self.factorize_whole(matrix, b, what);
         };
         // Only for many solves: the few-solves (AMD) order regularises pivots.
         if let (Factorization::Ldlt(ldlt), Solves::Many) = (&mut schur, self.solves) {
@@ -652,7 +778,7 @@ impl ReusableFactorization {
             plan: plan.clone(),
             local,
             schur,
-            matrix: RefinementMatrix::of(a, &self.pattern),
+            matrix: RefinementMatrix::of(&matrix, self.kind, &self.pattern),
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
         };
         let product = |v: &[f64]| condensed.matrix.product(v);
@@ -660,14 +786,16 @@ impl ReusableFactorization {
             condensed.raw_solve(d, false)
         });
         let f = Factorization::Condensed(Box::new(condensed));
-        // Judged on A itself, all of it: the local eliminations are not
-        // refined, and the refinement's product reads A's lower triangle
-        // only (A's round-off asymmetry moved the shell's first residual at
-        // n = 128 from 2.6e-9 to 3.3e-9, too near the acceptance bounds).
+        // Judged on A itself, all of it as stored: the local eliminations
+        // are not refined, and the refinement's product reads A's lower
+        // triangle only (a whole A's round-off asymmetry moved the shell's
+        // first residual at n = 128 from 2.6e-9 to 3.3e-9, too near the
+        // acceptance bounds).
+        let storage = Storage::of(a.as_ref(), self.kind);
         let checked = if norm_inf(b) == 0.0 {
-            check_solve(a, &f, b, what)
+            check_solve(a, storage, &f, b, what)
         } else {
-            judge_solve(a, &x, b, None, what).map(|q| (x, q))
+            judge_solve(a, storage, &x, b, None, what).map(|q| (x, q))
         };
         if let Ok((x, quality)) = checked {
             if quality.accepted(CONDENSED_ACCEPTED) {
@@ -678,23 +806,22 @@ impl ReusableFactorization {
         // A_IR: the shell at ρ = 1e12, refined residual 5e-8 condensed, 3e-10
         // whole).
         drop(f);
-        self.factorize_whole(a, b, what)
+        self.factorize_whole(matrix, b, what)
     }
 
     /// The fallback of a condensed factorisation: A itself from now on
     /// (with its own fallbacks, LU last).
     fn factorize_whole(
         &mut self,
-        a: &SparseColMat<usize, f64>,
+        matrix: Shared<'_>,
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let analyses = self.direct.symbolic_analyses;
         self.condensation = None;
-        self.direct = DirectFactorizer::analyze(a, self.kind, self.solves, what)?;
+        self.direct = DirectFactorizer::analyze(&matrix, self.kind, self.solves, what)?;
         self.direct.symbolic_analyses += analyses;
-        self.direct
-            .factorize_and_solve(Shared::Borrowed(a), b, what)
+        self.direct.factorize_and_solve(matrix, b, what)
     }
 
     /// The factorisation in use: "Cholesky", "LDLᵀ" or "LU" (after a
@@ -758,6 +885,7 @@ impl DirectFactorizer {
         };
         Ok(DirectFactorizer {
             symbolic,
+            kind,
             symbolic_analyses: 1,
             numeric_factorizations: 0,
             fallbacks: Vec::new(),
@@ -776,9 +904,10 @@ impl DirectFactorizer {
         let a: &SparseColMat<usize, f64> = &matrix;
         check_entries(a, what)?;
         parallelism();
+        let storage = Storage::of(a.as_ref(), self.kind);
         let f = match &self.symbolic {
             SymbolicAnalysis::Lu(symbolic) => Factorization::Lu(Box::new(
-                Lu::try_new_with_symbolic(symbolic.clone(), a.as_ref()).map_err(|e| {
+                Lu::try_new_with_symbolic(symbolic.clone(), storage.whole(a).as_ref().as_ref()).map_err(|e| {
                     let reason = match e {
                         faer::sparse::linalg::LuError::Generic(FaerError::OutOfMemory) => {
                             "out of memory".to_string()
@@ -804,7 +933,7 @@ impl DirectFactorizer {
                         let rhs = if norm_inf(b) == 0.0 { test_rhs(a.nrows()) } else { b.to_vec() };
                         let mut x = rhs.clone();
                         f.solve_in_place(&mut x);
-                        let quality = SolveQuality::of(a, &x, &rhs);
+                        let quality = SolveQuality::of(a, storage, &x, &rhs);
                         (quality.backward <= BACKWARD_ACCEPTED).then(|| {
                             let x = if norm_inf(b) == 0.0 { vec![0.0; b.len()] } else { x };
                             (f, x, quality.relative)
@@ -826,7 +955,7 @@ impl DirectFactorizer {
                 let (n_primal, order) = (*n_primal, *order);
                 let ldlt = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), n_primal, what);
                 let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
-                    let (x, quality) = check_solve(a, &f, b, what)?;
+                    let (x, quality) = check_solve(a, storage, &f, b, what)?;
                     Ok((f, x, quality))
                 });
                 let why = match solved {
@@ -872,7 +1001,7 @@ impl DirectFactorizer {
             ),
         };
         self.numeric_factorizations += 1;
-        match check_solve(a, &f, b, what) {
+        match check_solve(a, storage, &f, b, what) {
             Ok((x, quality)) => Ok((f, x, quality.relative)),
             Err(e) if matches!(self.symbolic, SymbolicAnalysis::Llt(_)) => {
                 // An SPD matrix too ill-conditioned for a plain Cholesky solve
@@ -945,7 +1074,7 @@ impl DirectFactorizer {
                 self.after_fallbacks(why.to_string()),
             ));
         }
-        lu_analysis(a, what)
+        lu_analysis(&Storage::of(a.as_ref(), self.kind).whole(a), what)
     }
 
     /// `e` with the failures that led here in its reason.
@@ -1158,21 +1287,25 @@ fn multipliers_after_neighbours(
         Default::default(),
         MemStack::new(&mut buffer),
     )?;
+    // The AMD position of each multiplier's last primal neighbour, from
+    // the entries of either triangle (the matrix may be its lower one).
+    let mut last: Vec<Option<usize>> = vec![None; n];
+    for j in 0..n {
+        for i in a.symbolic().row_idx_of_col(j) {
+            let (multiplier, primal) = match (i < n_primal, j < n_primal) {
+                (true, false) => (j, i),
+                (false, true) => (i, j),
+                _ => continue,
+            };
+            last[multiplier] = last[multiplier].max(Some(inv[primal]));
+        }
+    }
     // Sort key: (position of the last primal neighbour, after the primal
     // unknown at that position, own AMD position).
     let mut order: Vec<(usize, bool, usize, usize)> = (0..n)
-        .map(|j| {
-            if j < n_primal {
-                return (inv[j], false, inv[j], j);
-            }
-            let last = a
-                .symbolic()
-                .row_idx_of_col(j)
-                .filter(|&i| i < n_primal)
-                .map(|i| inv[i])
-                .max()
-                .unwrap_or(inv[j]);
-            (last, true, inv[j], j)
+        .map(|j| match j < n_primal {
+            true => (inv[j], false, inv[j], j),
+            false => (last[j].unwrap_or(inv[j]), true, inv[j], j),
         })
         .collect();
     order.sort_unstable();
@@ -1258,8 +1391,10 @@ pub struct RegularizedLdlt {
     /// Symmetric equilibration D: the factors are those of D A D.
     scale: Vec<f64>,
     /// The matrix itself, for the refinement (shared with the caller's
-    /// copy when there is one: a condensed factorisation's S exists once).
+    /// copy when there is one: a condensed factorisation's S exists once),
+    /// whole or its lower triangle.
     matrix: Arc<SparseColMat<usize, f64>>,
+    storage: Storage,
     norm: f64,
     /// Solves skip the refinement against this matrix: set only inside a
     /// condensed factorisation (which refines against A anyway) when a test
@@ -1312,6 +1447,7 @@ impl RegularizedLdlt {
             values,
             scale,
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
+            storage: Storage::of(a.as_ref(), MatrixKind::SymmetricSaddle { n_primal }),
             matrix,
             raw_solves_suffice: false,
         })
@@ -1325,7 +1461,11 @@ impl RegularizedLdlt {
         let rhs = test_rhs(self.matrix.nrows());
         let mut x = rhs.clone();
         self.raw_solve(&mut x, 1);
-        let r = norm_inf(&residual(&self.matrix, &x, &rhs));
+        let r = norm_inf(
+            &self
+                .storage
+                .residual(self.matrix.as_ref().as_ref(), &x, &rhs),
+        );
         self.raw_solves_suffice = r <= round_off(self.norm, &x, &rhs);
     }
 
@@ -1362,7 +1502,7 @@ impl RegularizedLdlt {
         for c in 0..k {
             let (x, bc) = (&mut b[c * n..(c + 1) * n], &rhs[c * n..(c + 1) * n]);
             refine_to_round_off(
-                |v| mat_vec(&self.matrix, v),
+                |v| self.storage.product(self.matrix.as_ref().as_ref(), v),
                 self.norm,
                 x,
                 bc,
@@ -1376,7 +1516,7 @@ impl RegularizedLdlt {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         solve_refined(
             b,
-            |v| mat_vec(&self.matrix, v),
+            |v| self.storage.product(self.matrix.as_ref().as_ref(), v),
             self.norm,
             |d| self.raw_solve(d, 1),
         )

@@ -12,7 +12,8 @@ use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{
-    factorize_checked, factorize_checked_with, residual, MatrixKind, ReusableFactorization, Solves,
+    factorize_checked, factorize_checked_with, refine, residual, MatrixKind, ReusableFactorization,
+    Solves,
 };
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::membrane::MembraneSystem;
@@ -636,6 +637,79 @@ fn ldlt_falls_back_to_lu_when_the_signs_are_wrong() {
     assert_eq!(analyses, 2);
     assert_eq!(diff, 0.0);
     assert!(res < 1e-10, "{res:e}");
+}
+
+/// The lower triangle of `a` (row ≥ column).
+fn lower_triangle(a: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+    let entries: Vec<Triplet<usize, usize, f64>> = (0..a.ncols())
+        .flat_map(|j| {
+            a.symbolic()
+                .row_idx_of_col(j)
+                .zip(a.val_of_col(j))
+                .filter(move |&(i, _)| i >= j)
+                .map(move |(i, &v)| Triplet::new(i, j, v))
+        })
+        .collect();
+    SparseColMat::try_new_from_triplets(a.nrows(), a.ncols(), &entries).unwrap()
+}
+
+#[test]
+fn a_symmetric_matrix_given_by_its_lower_triangle_solves_as_the_whole() {
+    // linalg reads a symmetric matrix by its lower triangle, so it may be
+    // given by it alone (the active set's Newton matrix is): the same
+    // solution whole or lower, in both orders, condensed or not; checks and
+    // refinement multiply by the implied whole matrix, so the residual
+    // against the whole matrix is at round-off too.
+    let mut problem = hypar(16, 1e3).1;
+    let sigma = balanced_tangency_scale(&problem);
+    scale_tangency_multiplier(&mut problem, sigma);
+    let (whole, kind) = (&problem.matrix, problem.kind);
+    let lower = lower_triangle(whole);
+    assert!(lower.val().len() < whole.val().len() * 6 / 10);
+    let rel = |x: &[f64]| norm_inf(&residual(whole, x, &problem.rhs)) / norm_inf(&problem.rhs);
+    for solves in [Solves::Few, Solves::Many] {
+        for interior in [None, problem.interior.as_ref()] {
+            let solve = |a: &SparseColMat<usize, f64>| {
+                let f = factorize_checked_with(a, kind, solves, interior, "shell").unwrap();
+                let mut x = problem.rhs.clone();
+                f.solve_in_place(&mut x);
+                x
+            };
+            let (x_whole, x_lower) = (solve(whole), solve(&lower));
+            let diff: Vec<f64> = x_whole.iter().zip(&x_lower).map(|(a, b)| a - b).collect();
+            let diff = norm_inf(&diff) / norm_inf(&x_whole);
+            let condensed = interior.is_some();
+            println!(
+                "{solves:?}, condensed {condensed}: |x_lower − x_whole| {diff:.1e}, residuals {:.1e} / {:.1e}",
+                rel(&x_lower),
+                rel(&x_whole)
+            );
+            assert!(diff < 1e-11, "{solves:?} condensed {condensed}: {diff:e}");
+            assert!(rel(&x_lower) < 1e-10, "{solves:?} condensed {condensed}");
+        }
+    }
+    // The LU fallback (signs declared wrong, as in the test above) reads
+    // every entry: it is given the whole matrix the lower triangle implies.
+    problem.kind = MatrixKind::SymmetricSaddle {
+        n_primal: problem.n(),
+    };
+    let lower = lower_triangle(&problem.matrix);
+    let mut chain =
+        ReusableFactorization::analyze(&lower, problem.kind, Solves::Few, "shell").unwrap();
+    let (f, _) = chain.factorize(&lower, "shell").unwrap();
+    assert_eq!((chain.method(), chain.symbolic_analyses()), ("LU", 2));
+    let mut x = problem.rhs.clone();
+    f.solve_in_place(&mut x);
+    let res = rel(&x);
+    println!("LU fallback from the lower triangle: residual {res:.1e}");
+    assert!(res < 1e-10, "{res:e}");
+    // Refinement multiplies by the implied whole matrix too.
+    let mut x_refined = x.clone();
+    let refined = refine(&lower, problem.kind, &f, &problem.rhs, &mut x_refined, 1);
+    assert!(
+        refined < 1e-10 && (refined - rel(&x_refined)).abs() < 1e-12,
+        "{refined:e}"
+    );
 }
 
 #[test]

@@ -15,7 +15,9 @@
 //! term to S, R_g being the remaining unknowns its rows and columns touch
 //! (vertex and edge unknowns, and any multiplier row that reaches a bubble),
 //! so S's pattern depends on A's pattern only: analysed once, refactorised
-//! numerically for every matrix of that pattern.
+//! numerically for every matrix of that pattern. A symmetric A is read by
+//! its lower triangle (it may be given so) and S is made as its lower
+//! triangle: half of S, of its maps and of the Schur terms' work.
 
 use crate::error::{Error, Result};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
@@ -99,11 +101,13 @@ pub(super) struct CondensationPlan {
     /// 64-bit at the shell's n = 256, 67.7M entries of A).
     rest_entries: Vec<(Index, Index)>,
     /// Per group, (A value index, slot in the local (p+q)² column-major
-    /// block, interior unknowns first), CSR over groups.
+    /// block, interior unknowns first), CSR over groups; of a symmetric A
+    /// the lower triangle's entries, each filling its mirror slot too.
     local_offsets: Vec<usize>,
     local_entries: Vec<(Index, Index)>,
     /// Per group, the S value index of each of its q×q (column-major)
-    /// Schur terms, CSR over groups (offsets Σ q²).
+    /// Schur terms (symmetric: rows c.. of each column c only), CSR over
+    /// groups (offsets Σ q², symmetric Σ q(q+1)/2).
     schur_offsets: Vec<usize>,
     schur_positions: Vec<Index>,
     /// Offsets of each group's A_II⁻¹ (Σ p²) and W = A_II⁻¹ A_IR (Σ p q).
@@ -185,10 +189,17 @@ impl CondensationPlan {
             s_index[i] = r;
         }
         let (col_ptr, row_idx) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
+        // A symmetric matrix is read by its lower triangle (as its LDLᵀ
+        // reads S's), whether or not it stores the upper one.
+        let symmetric = kind != MatrixKind::General;
+        let read = |i: usize, j: usize| !symmetric || i >= j;
         // Boundaries, and the entries between two groups (an error).
         let mut boundaries: Vec<Vec<usize>> = vec![Vec::new(); groups.len()];
         for j in 0..n {
-            for &i in &row_idx[col_ptr[j]..col_ptr[j + 1]] {
+            for &i in row_idx[col_ptr[j]..col_ptr[j + 1]]
+                .iter()
+                .filter(|&&i| read(i, j))
+            {
                 match (group_of[i], group_of[j]) {
                     (NONE, NONE) => {}
                     (gi, NONE) => boundaries[gi].push(s_index[j]),
@@ -214,7 +225,8 @@ impl CondensationPlan {
             boundary_offsets.push(boundary.len());
         }
         drop(boundaries);
-        // The pattern of S: A_RR and a dense block per group boundary.
+        // The pattern of S: A_RR and a dense block per group boundary (of
+        // a symmetric A, their lower triangles: S's index order is A's).
         let m = remaining.len();
         let mut columns: Vec<Vec<usize>> = vec![Vec::new(); m];
         for j in 0..n {
@@ -223,15 +235,16 @@ impl CondensationPlan {
                 col.extend(
                     row_idx[col_ptr[j]..col_ptr[j + 1]]
                         .iter()
-                        .filter(|&&i| s_index[i] != NONE)
+                        .filter(|&&i| s_index[i] != NONE && read(i, j))
                         .map(|&i| s_index[i]),
                 );
             }
         }
+        let rows_of = |k: usize| if symmetric { k } else { 0 };
         for g in 0..groups.len() {
             let b = &boundary[boundary_offsets[g]..boundary_offsets[g + 1]];
-            for &c in b {
-                columns[c].extend_from_slice(b);
+            for (k, &c) in b.iter().enumerate() {
+                columns[c].extend_from_slice(&b[rows_of(k)..]);
             }
         }
         let mut s_col_ptr = Vec::with_capacity(m + 1);
@@ -256,6 +269,9 @@ impl CondensationPlan {
         for j in 0..n {
             for k in col_ptr[j]..col_ptr[j + 1] {
                 let i = row_idx[k];
+                if !read(i, j) {
+                    continue;
+                }
                 match (group_of[i], group_of[j]) {
                     (NONE, NONE) => {
                         rest_entries.push((index(k), index(position(s_index[i], s_index[j]))))
@@ -286,6 +302,7 @@ impl CondensationPlan {
             for k in col_ptr[j]..col_ptr[j + 1] {
                 let i = row_idx[k];
                 let g = match (group_of[i], group_of[j]) {
+                    _ if !read(i, j) => continue,
                     (NONE, NONE) => continue,
                     (NONE, g) | (g, _) => g,
                 };
@@ -303,8 +320,8 @@ impl CondensationPlan {
         for g in 0..groups.len() {
             let b = &boundary[boundary_offsets[g]..boundary_offsets[g + 1]];
             let (p, q) = (groups.group(g).len(), b.len());
-            for &c in b {
-                for &r in b {
+            for (k, &c) in b.iter().enumerate() {
+                for &r in &b[rows_of(k)..] {
                     schur_positions.push(index(position(r, c)));
                 }
             }
@@ -319,7 +336,7 @@ impl CondensationPlan {
             other => other,
         };
         Ok(CondensationPlan {
-            symmetric: kind != MatrixKind::General,
+            symmetric,
             groups: groups.clone(),
             remaining,
             boundary_offsets,
@@ -385,7 +402,14 @@ impl CondensationPlan {
             block.resize(size * size, 0.0);
             for &(k, slot) in &self.local_entries[self.local_offsets[g]..self.local_offsets[g + 1]]
             {
-                block[slot as usize] += values[k as usize];
+                let (slot, v) = (slot as usize, values[k as usize]);
+                block[slot] += v;
+                // A symmetric matrix's entry below the block's diagonal
+                // fills its mirror too (only the lower triangle is read).
+                let (c, r) = (slot / size, slot % size);
+                if self.symmetric && r != c {
+                    block[r * size + c] += v;
+                }
             }
             let at = |r: usize, c: usize| block[c * size + r];
             let inv = &mut inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
@@ -405,20 +429,25 @@ impl CondensationPlan {
             }
             // S_RR −= A_RI W, column c as axpys of A_RI's contiguous
             // columns (the block is column-major): the same sums in the same
-            // order as dot products, at a fraction of the time.
-            let positions = &self.schur_positions[self.schur_offsets[g]..self.schur_offsets[g + 1]];
+            // order as dot products, at a fraction of the time. Symmetric:
+            // rows c.. of column c only (S is its lower triangle).
+            let mut positions =
+                &self.schur_positions[self.schur_offsets[g]..self.schur_offsets[g + 1]];
             scratch.term.resize(q, 0.0);
-            // (q = 0: a triangle whose vertices are all fixed.)
-            for (c, positions) in positions.chunks_exact(q.max(1)).enumerate() {
-                let term = &mut scratch.term[..q];
+            for c in 0..q {
+                let first = if self.symmetric { c } else { 0 };
+                let (column_positions, rest) = positions.split_at(q - first);
+                positions = rest;
+                let term = &mut scratch.term[..q - first];
                 term.fill(0.0);
                 for l in 0..p {
-                    let (column, w_lc) = (&block[l * size + p..l * size + size], w[l * q + c]);
+                    let column = &block[l * size + p + first..l * size + size];
+                    let w_lc = w[l * q + c];
                     term.iter_mut()
                         .zip(column)
                         .for_each(|(t, a)| *t += a * w_lc);
                 }
-                for (&position, t) in positions.iter().zip(term.iter()) {
+                for (&position, t) in column_positions.iter().zip(term.iter()) {
                     s_values[position as usize] -= t;
                 }
             }

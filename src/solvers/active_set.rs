@@ -70,6 +70,7 @@ use crate::error::{Error, Result};
 use crate::linalg::{mat_vec, norm_inf};
 use crate::linalg::{refine, MatrixKind, ReusableFactorization, Solves};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// History columns after the KKT ones (`History::for_solver`). Row k is the iterate
@@ -133,9 +134,13 @@ impl ColdStart {
 }
 
 /// The Newton matrix with its fixed pattern and the positions of the
-/// entries an active set switches.
+/// entries an active set switches. Symmetric (A symmetric): stored as its
+/// lower triangle, the storage every symmetric factorisation reads
+/// (`linalg`): at the shell's n = 256 the whole matrix was a second copy of
+/// A (1.1 GB) beside the problem's.
 struct NewtonMatrix {
-    matrix: SparseColMat<usize, f64>,
+    /// Shared with each step's factorisation for its refinement.
+    matrix: Arc<SparseColMat<usize, f64>>,
     /// For each constraint i: (value position in the matrix, s_i C_ij) of
     /// the entries of row n + i and of column n + i.
     entries: Vec<Vec<(usize, f64)>>,
@@ -148,11 +153,13 @@ struct NewtonMatrix {
 }
 
 impl NewtonMatrix {
-    fn new(problem: &ContactProblem) -> Result<Self> {
+    fn new(problem: &ContactProblem, kind: MatrixKind) -> Result<Self> {
+        let lower = kind != MatrixKind::General;
         let c = problem.constraint.as_ref().expect("a constrained problem");
         let (n, m) = (problem.n(), c.obstacle.len());
         let a = &problem.matrix;
         let a_max = norm_inf(a.val()).max(f64::MIN_POSITIVE);
+        let as_ = a.symbolic();
         // Rows of C (the multiplier columns are −Cᵀ S).
         let mut c_rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
         let cs = c.matrix.symbolic();
@@ -176,21 +183,28 @@ impl NewtonMatrix {
             }
             scale.push(a_max / row_max);
         }
-        // Columns 0..n: A's column, then the rows n + i of C's column j.
-        // Columns n..n+m: s_i (row i of C)ᵀ, then the diagonal. All values
-        // start switched off (set_active fills them).
+        // Columns 0..n: A's column (lower: from the diagonal down), then the
+        // rows n + i of C's column j. Columns n..n+m: s_i (row i of C)ᵀ
+        // (whole only), then the diagonal. All values start switched off
+        // (set_active fills them).
         let nnz_c: usize = c_rows.iter().map(Vec::len).sum();
-        let nnz = a.val().len() + 2 * nnz_c + m;
+        let nnz_a = match lower {
+            true => (0..n)
+                .map(|j| as_.row_idx_of_col(j).filter(|&i| i >= j).count())
+                .sum(),
+            false => a.val().len(),
+        };
+        let nnz = nnz_a + if lower { nnz_c } else { 2 * nnz_c } + m;
         let mut col_ptr = Vec::with_capacity(n + m + 1);
         let mut row_idx = Vec::with_capacity(nnz);
         let mut values = Vec::with_capacity(nnz);
         let mut entries: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
         col_ptr.push(0);
-        let as_ = a.symbolic();
         for j in 0..n {
             let mut col: Vec<(usize, f64)> = as_
                 .row_idx_of_col(j)
                 .zip(a.val_of_col(j).iter().copied())
+                .filter(|&(i, _)| !lower || i >= j)
                 .collect();
             col.sort_by_key(|e| e.0);
             for (r, v) in col {
@@ -212,7 +226,7 @@ impl NewtonMatrix {
         let mut diagonal = Vec::with_capacity(m);
         for (i, row) in c_rows.iter_mut().enumerate() {
             row.sort_by_key(|e| e.0);
-            for &(j, v) in row.iter() {
+            for &(j, v) in row.iter().filter(|_| !lower) {
                 entries[i].push((values.len(), scale[i] * v));
                 row_idx.push(j);
                 values.push(0.0);
@@ -224,7 +238,7 @@ impl NewtonMatrix {
         }
         let symbolic = SymbolicSparseColMat::new_checked(n + m, n + m, col_ptr, None, row_idx);
         Ok(NewtonMatrix {
-            matrix: SparseColMat::new(symbolic, values),
+            matrix: Arc::new(SparseColMat::new(symbolic, values)),
             entries,
             diagonal,
             d: a_max,
@@ -234,7 +248,9 @@ impl NewtonMatrix {
 
     /// Switches the constraint rows and multiplier columns to the active set.
     fn set_active(&mut self, active: &[bool]) {
-        let values = self.matrix.val_mut();
+        let values = Arc::get_mut(&mut self.matrix)
+            .expect("the previous step's factorisation is dropped")
+            .val_mut();
         for (i, &on) in active.iter().enumerate() {
             for &(pos, v) in &self.entries[i] {
                 values[pos] = if on { v } else { 0.0 };
@@ -297,7 +313,6 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     };
 
     let t = Instant::now();
-    let mut newton = NewtonMatrix::new(problem)?;
     // The Newton matrix is symmetric when A is; its multipliers (A's own,
     // then μ) take negative pivots.
     let kind = match problem.kind {
@@ -308,6 +323,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             }
         }
     };
+    let mut newton = NewtonMatrix::new(problem, kind)?;
     let mut factorizer = ReusableFactorization::analyze_with(
         &newton.matrix,
         kind,
@@ -349,8 +365,11 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             };
         }
         let t = Instant::now();
-        let (factorization, mut z, solve_residual) =
-            factorizer.factorize_and_solve(&newton.matrix, &rhs, "active-set Newton matrix")?;
+        let (factorization, mut z, solve_residual) = factorizer.factorize_and_solve_shared(
+            &newton.matrix,
+            &rhs,
+            "active-set Newton matrix",
+        )?;
         report.factor_seconds += t.elapsed().as_secs_f64();
         // LU: refinement steps on top; LDLᵀ solves refine themselves.
         let steps = if factorizer.method() == "LU" {
@@ -361,7 +380,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         // (No steps: the factorisation's own check measured the residual.)
         let linear_residual = match steps {
             0 => solve_residual,
-            _ => refine(&newton.matrix, &factorization, &rhs, &mut z, steps),
+            _ => refine(&newton.matrix, kind, &factorization, &rhs, &mut z, steps),
         };
         max_linear_residual = max_linear_residual.max(linear_residual);
         check_finite(STAGE, k, "Newton step", &z)?;
