@@ -466,15 +466,16 @@ struct SolveQuality {
     /// ‖Ax − b‖∞/(‖A‖ ‖x‖∞ + ‖b‖∞), ‖A‖ the largest entry.
     backward: f64,
     /// Componentwise (Oettli–Prager): max_i |Ax − b|_i/(|A| |x| + |b|)_i,
-    /// each row against its own scale.
-    componentwise: f64,
+    /// each row against its own scale; computed (one more pass over A)
+    /// only when the relative residual is above every acceptance bound.
+    componentwise: Option<f64>,
 }
 
 impl SolveQuality {
     const EXACT: SolveQuality = SolveQuality {
         relative: 0.0,
         backward: 0.0,
-        componentwise: 0.0,
+        componentwise: Some(0.0),
     };
 
     fn of(a: &SparseColMat<usize, f64>, storage: Storage, x: &[f64], b: &[f64]) -> Self {
@@ -495,17 +496,19 @@ impl SolveQuality {
             None => storage.residual(a.as_ref(), x, b),
         };
         let size = norm_inf(&r);
-        let scale = storage.absolute_product(a.as_ref(), x);
-        let componentwise = r
-            .iter()
-            .zip(&scale)
-            .zip(b)
-            .fold(0.0f64, |m, ((ri, si), bi)| match ri.abs() {
-                0.0 => m,
-                e => m.max(e / (si + bi.abs())),
-            });
+        let relative = size / norm_inf(b);
+        let componentwise = (relative > LDLT_ACCEPTED.min(CONDENSED_ACCEPTED)).then(|| {
+            let scale = storage.absolute_product(a.as_ref(), x);
+            r.iter()
+                .zip(&scale)
+                .zip(b)
+                .fold(0.0f64, |m, ((ri, si), bi)| match ri.abs() {
+                    0.0 => m,
+                    e => m.max(e / (si + bi.abs())),
+                })
+        });
         SolveQuality {
-            relative: size / norm_inf(b),
+            relative,
             backward: size / (norm_inf(a.val()) * norm_inf(x) + norm_inf(b)),
             componentwise,
         }
@@ -516,7 +519,10 @@ impl SolveQuality {
     /// or when it is accurate row by row ([`COMPONENTWISE_ACCEPTED`]): then
     /// it is as good as any backward-stable solve, LU's included.
     fn accepted(self, bound: f64) -> bool {
-        self.relative <= bound || self.componentwise <= COMPONENTWISE_ACCEPTED
+        self.relative <= bound
+            || self
+                .componentwise
+                .is_some_and(|c| c <= COMPONENTWISE_ACCEPTED)
     }
 
     /// A condensed solve (judged on A; S's own solve had relative residual
@@ -828,20 +834,23 @@ impl ReusableFactorization {
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
         };
         let product = |v: &[f64]| condensed.matrix.product(v);
-        refine_to_round_off(product, condensed.norm, &mut x, b, |d| {
+        let refined_ax = refine_to_round_off(product, condensed.norm, &mut x, b, |d| {
             condensed.raw_solve(d, false)
         });
-        let f = Factorization::Condensed(Box::new(condensed));
         // Judged on A itself, all of it as stored: the local eliminations
-        // are not refined, and the refinement's product reads A's lower
+        // are not refined, and the refinement's copy reads a whole A's lower
         // triangle only (a whole A's round-off asymmetry moved the shell's
         // first residual at n = 128 from 2.6e-9 to 3.3e-9, too near the
-        // acceptance bounds).
+        // acceptance bounds). A shared A is the refinement's own: its last
+        // product is the judge's.
+        let shared = matches!(condensed.matrix, RefinementMatrix::Shared(..));
+        let judged_ax = shared.then_some(refined_ax);
+        let f = Factorization::Condensed(Box::new(condensed));
         let storage = Storage::of(a.as_ref(), self.kind);
         let checked = if norm_inf(b) == 0.0 {
             check_solve(a, storage, &f, b, what)
         } else {
-            judge_solve(a, storage, &x, b, None, what).map(|q| (x, q))
+            judge_solve(a, storage, &x, b, judged_ax.as_deref(), what).map(|q| (x, q))
         };
         if let Ok((x, quality)) = checked {
             if quality.condensed_accepted(schur_relative) {
@@ -1014,7 +1023,7 @@ impl DirectFactorizer {
                         order.describe(),
                         q.relative,
                         self.accepted(),
-                        q.componentwise
+                        q.componentwise.unwrap_or(f64::NAN)
                     ),
                     Err(e) => format!("LDLᵀ ({}): {e}", order.describe()),
                 };
@@ -1763,7 +1772,7 @@ mod tests {
         let quality = |relative, componentwise| SolveQuality {
             relative,
             backward: 0.0,
-            componentwise,
+            componentwise: Some(componentwise),
         };
         // Shell n = 512, first Newton solve: S's LDLᵀ above its bound but
         // at round-off row by row; the condensed solve within 1.2× of S's.
