@@ -142,7 +142,7 @@ struct NewtonMatrix {
     /// Shared with each step's factorisation for its refinement.
     matrix: Arc<SparseColMat<usize, f64>>,
     /// For each constraint i: (value position in the matrix, s_i C_ij) of
-    /// the entries of row n + i and of column n + i.
+    /// the entries of row n + i (and of column n + i when stored whole).
     entries: Vec<Vec<(usize, f64)>>,
     /// Value position of the diagonal entry (n + i, n + i).
     diagonal: Vec<usize>,
