@@ -27,7 +27,7 @@ const SHELL_BYTES_PER_UNKNOWN: f64 = 5.0e3;
 /// The same, condensed (the default), since the symmetric matrices are
 /// stored and condensed by their lower triangle (docs/work-precision.md,
 /// "Lower-triangle storage"): n = 64, 95,111 unknowns, 265 MB (2.8 KB);
-/// n = 128, 1069 MB (2.8 KB); n = 256, 4778 MB (3.2 KB); n = 512, 6,029,… ,
+/// n = 128, 1069 MB (2.8 KB); n = 256, 4778 MB (3.2 KB); n = 512, ≈ 6.03M,
 /// 20157 MB (3.3 KB). Before: 4.5–4.7 KB, and 5.5–5.7 KB before that.
 const SHELL_CONDENSED_BYTES_PER_UNKNOWN: f64 = 3.6e3;
 
