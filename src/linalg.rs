@@ -12,7 +12,7 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
 };
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::{FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat};
+use faer::sparse::{FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat, Triplet};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
@@ -113,13 +113,10 @@ impl Storage {
         for (j, &xj) in x.iter().enumerate() {
             for k in s.col_ptr()[j]..s.col_ptr()[j + 1] {
                 let (i, v) = (s.row_idx()[k], values[k].abs());
-                match self {
-                    Storage::Whole => y[i] += v * xj.abs(),
-                    Storage::LowerTriangle if i > j => {
-                        y[i] += v * xj.abs();
-                        y[j] += v * x[i].abs();
-                    }
-                    Storage::LowerTriangle => y[i] += v * xj.abs(),
+                y[i] += v * xj.abs();
+                // The implied upper entry (j, i).
+                if self == Storage::LowerTriangle && i > j {
+                    y[j] += v * x[i].abs();
                 }
             }
         }
@@ -131,34 +128,24 @@ impl Storage {
         difference(b, &self.product(a, x))
     }
 
-    /// The matrix with both triangles (a copy of the lower triangle's
-    /// mirror added), for LU, which reads every entry.
+    /// The matrix with both triangles (the lower triangle and its mirror),
+    /// for LU, which reads every entry.
     fn whole(self, a: &SparseColMat<usize, f64>) -> std::borrow::Cow<'_, SparseColMat<usize, f64>> {
         if self == Storage::Whole {
             return std::borrow::Cow::Borrowed(a);
         }
-        let n = a.ncols();
-        let s = a.symbolic();
-        let mut columns: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n];
-        for j in 0..n {
-            for (i, &v) in s.row_idx_of_col(j).zip(a.val_of_col(j)) {
-                columns[j].push((i, v));
+        let mut entries = Vec::with_capacity(2 * a.val().len());
+        for j in 0..a.ncols() {
+            for (i, &v) in a.symbolic().row_idx_of_col(j).zip(a.val_of_col(j)) {
+                entries.push(Triplet::new(i, j, v));
                 if i != j {
-                    columns[i].push((j, v));
+                    entries.push(Triplet::new(j, i, v));
                 }
             }
         }
-        let (mut col_ptr, mut row_idx, mut values) = (vec![0], Vec::new(), Vec::new());
-        for mut column in columns {
-            column.sort_unstable_by_key(|e| e.0);
-            for (i, v) in column {
-                row_idx.push(i);
-                values.push(v);
-            }
-            col_ptr.push(row_idx.len());
-        }
-        let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
-        std::borrow::Cow::Owned(SparseColMat::new(symbolic, values))
+        let whole = SparseColMat::try_new_from_triplets(a.nrows(), a.ncols(), &entries)
+            .expect("indices of a valid matrix");
+        std::borrow::Cow::Owned(whole)
     }
 }
 
@@ -296,9 +283,9 @@ enum RefinementMatrix {
 impl RefinementMatrix {
     /// A's values on the kept pattern (a general matrix's), else A's lower
     /// triangle (a symmetric one's: its pattern is only fingerprinted).
-    fn of(a: &Shared<'_>, kind: MatrixKind, pattern: &AnalysedPattern) -> Self {
+    fn of(a: &Shared<'_>, storage: Storage, pattern: &AnalysedPattern) -> Self {
         if let Shared::Owned(a) = a {
-            return RefinementMatrix::Shared(a.clone(), Storage::of(a.as_ref().as_ref(), kind));
+            return RefinementMatrix::Shared(a.clone(), storage);
         }
         match pattern {
             AnalysedPattern::Kept(pattern) => RefinementMatrix::General {
@@ -808,6 +795,7 @@ impl ReusableFactorization {
             return self.direct.factorize_and_solve(matrix.clone(), b, what);
         };
         check_entries(a, what)?;
+        let storage = Storage::of(a.as_ref(), self.kind);
         let (s, local) = plan.condense(a, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
         // S moves into its factorisation (kept there for the refinement).
@@ -830,7 +818,7 @@ impl ReusableFactorization {
             plan: plan.clone(),
             local,
             schur,
-            matrix: RefinementMatrix::of(&matrix, self.kind, &self.pattern),
+            matrix: RefinementMatrix::of(&matrix, storage, &self.pattern),
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
         };
         let product = |v: &[f64]| condensed.matrix.product(v);
@@ -846,7 +834,6 @@ impl ReusableFactorization {
         let shared = matches!(condensed.matrix, RefinementMatrix::Shared(..));
         let judged_ax = shared.then_some(refined_ax);
         let f = Factorization::Condensed(Box::new(condensed));
-        let storage = Storage::of(a.as_ref(), self.kind);
         let checked = if norm_inf(b) == 0.0 {
             check_solve(a, storage, &f, b, what)
         } else {
@@ -981,7 +968,7 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), *n_primal, what)
+                let solved = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), storage, *n_primal, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
@@ -1008,7 +995,8 @@ impl DirectFactorizer {
                 order,
             } => {
                 let (n_primal, order) = (*n_primal, *order);
-                let ldlt = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), n_primal, what);
+                let ldlt =
+                    RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), storage, n_primal, what);
                 let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
                     let (x, quality) = check_solve(a, storage, &f, b, what)?;
                     Ok((f, x, quality))
@@ -1483,6 +1471,7 @@ impl RegularizedLdlt {
     fn new(
         symbolic: Arc<SymbolicCholesky<usize>>,
         matrix: Arc<SparseColMat<usize, f64>>,
+        storage: Storage,
         n_primal: usize,
         what: &str,
     ) -> Result<Self> {
@@ -1524,7 +1513,7 @@ impl RegularizedLdlt {
             values,
             scale,
             norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
-            storage: Storage::of(a.as_ref(), MatrixKind::SymmetricSaddle { n_primal }),
+            storage,
             matrix,
             raw_solves_suffice: false,
         })
@@ -1700,9 +1689,9 @@ pub fn norm2(x: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
-    /// A 4×4 symmetric matrix, whole.
-    fn symmetric() -> SparseColMat<usize, f64> {
-        let entries = [
+    /// A 4×4 symmetric matrix: (whole, its lower triangle).
+    fn symmetric() -> (SparseColMat<usize, f64>, SparseColMat<usize, f64>) {
+        let lower = [
             (0, 0, 4.0),
             (1, 0, -1.0),
             (3, 0, 0.5),
@@ -1712,33 +1701,22 @@ mod tests {
             (3, 2, 1.5),
             (3, 3, 2.0),
         ];
-        let mut triplets = Vec::new();
-        for &(i, j, v) in &entries {
-            triplets.push(faer::sparse::Triplet::new(i, j, v));
-            if i != j {
-                triplets.push(faer::sparse::Triplet::new(j, i, v));
-            }
-        }
-        SparseColMat::try_new_from_triplets(4, 4, &triplets).unwrap()
-    }
-
-    fn lower_of(a: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
-        let triplets: Vec<_> = (0..a.ncols())
-            .flat_map(|j| {
-                a.symbolic()
-                    .row_idx_of_col(j)
-                    .zip(a.val_of_col(j))
-                    .filter(move |&(i, _)| i >= j)
-                    .map(move |(i, &v)| faer::sparse::Triplet::new(i, j, v))
-            })
-            .collect();
-        SparseColMat::try_new_from_triplets(a.nrows(), a.ncols(), &triplets).unwrap()
+        let triplets = |mirrored: bool| -> Vec<Triplet<usize, usize, f64>> {
+            lower
+                .iter()
+                .flat_map(|&(i, j, v)| {
+                    let mirror = (mirrored && i != j).then(|| Triplet::new(j, i, v));
+                    std::iter::once(Triplet::new(i, j, v)).chain(mirror)
+                })
+                .collect()
+        };
+        let matrix = |t: Vec<_>| SparseColMat::try_new_from_triplets(4, 4, &t).unwrap();
+        (matrix(triplets(true)), matrix(triplets(false)))
     }
 
     #[test]
     fn a_lower_triangle_multiplies_and_expands_as_the_whole_matrix() {
-        let whole = symmetric();
-        let lower = lower_of(&whole);
+        let (whole, lower) = symmetric();
         let kind = MatrixKind::SymmetricSaddle { n_primal: 2 };
         assert_eq!(Storage::of(whole.as_ref(), kind), Storage::Whole);
         assert_eq!(Storage::of(lower.as_ref(), kind), Storage::LowerTriangle);
