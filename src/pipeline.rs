@@ -302,6 +302,7 @@ pub struct WarmStart {
 /// `show_progress` draws their progress.
 pub fn solver_options(
     solver: &SolverSpec,
+    model: Model,
     start: Option<WarmStart>,
     show_progress: bool,
 ) -> SolverOptions {
@@ -313,8 +314,9 @@ pub fn solver_options(
             show_progress,
             initial_x: start.as_ref().map(|s| s.x.clone()),
             initial_lambda: start.as_ref().map(|s| s.lambda.clone()),
-            cold_start: match solver.cold_start {
-                ColdStartSpec::DepthBisection => ColdStart::DEPTH_BISECTION,
+            cold_start: match solver.cold_start.for_model(model) {
+                ColdStartSpec::DepthBisection | ColdStartSpec::Auto => ColdStart::DEPTH_BISECTION,
+                ColdStartSpec::InteriorPoint => ColdStart::INTERIOR_POINT,
                 ColdStartSpec::Plain => ColdStart::Plain,
             },
             ..Default::default()
@@ -393,7 +395,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     let warm_start = nested_start(scene, system.as_ref(), &problem)?;
     let report = crate::solvers::solve(
         &problem,
-        &solver_options(&scene.solver, warm_start, show_progress),
+        &solver_options(&scene.solver, scene.model, warm_start, show_progress),
         &system.probes(),
     )
     .map_err(|e| guards::name_matrix_inputs(scene, e))?;
@@ -480,7 +482,7 @@ fn nested_start(
     let start = nested_start(&coarse, coarse_system.as_ref(), &coarse_problem)?;
     let report = crate::solvers::solve(
         &coarse_problem,
-        &solver_options(&coarse.solver, start, false),
+        &solver_options(&coarse.solver, coarse.model, start, false),
         &coarse_system.probes(),
     )?;
     if report.lambda.iter().all(|&l| l <= 0.0) {
@@ -560,7 +562,7 @@ pub fn result_data(
     if let Some(e) = &errors {
         data.root_attrs.extend(e.attrs());
     }
-    record_solver(&mut data, &scene.solver, report);
+    record_solver(&mut data, scene, report);
     if scene.adapt.is_some() || scene.output.plots.contains(&PlotKind::Estimator) {
         add_estimator(&mut data, system, problem, report);
     }
@@ -623,7 +625,8 @@ pub fn write_plots(
 }
 
 /// The `/solver` attributes and history of docs/formulation.md §5.
-fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
+fn record_solver(data: &mut ResultData, scene: &Scene, report: &SolveReport) {
+    let s = &scene.solver;
     let m = &report.measures;
     let mut attrs: Vec<(String, AttrValue)> = vec![
         ("algorithm".into(), AttrValue::Str(report.algorithm.clone())),
@@ -663,6 +666,12 @@ fn record_solver(data: &mut ResultData, s: &SolverSpec, report: &SolveReport) {
             AttrValue::Str(format!("{:?}", s.dual_norm).to_lowercase()),
         ),
     ];
+    if s.method == Method::ActiveSet {
+        attrs.push((
+            "cold_start".into(),
+            AttrValue::Str(s.cold_start.for_model(scene.model).name().into()),
+        ));
+    }
     if let Some(f) = s.step_form {
         attrs.push((
             "step_form".into(),

@@ -451,8 +451,10 @@ pub struct SolverSpec {
     #[serde(default)]
     pub nested: bool,
     /// Active set from a cold start: "depth-bisection" (probe nested sets
-    /// inside the free solution's penetration zone, then PDAS) or "plain"
-    /// PDAS (src/solvers/active_set.rs).
+    /// inside the free solution's penetration zone, then PDAS),
+    /// "interior-point" (interior-point steps until the contact set shows,
+    /// then PDAS), "plain" PDAS, or "auto": interior-point for the shell,
+    /// depth-bisection for the membrane (src/solvers/active_set.rs).
     #[serde(default)]
     pub cold_start: ColdStartSpec,
     /// Static condensation of element-interior unknowns (bubbles) in every
@@ -470,8 +472,35 @@ pub struct SolverSpec {
 #[serde(rename_all = "kebab-case")]
 pub enum ColdStartSpec {
     #[default]
+    Auto,
     DepthBisection,
+    InteriorPoint,
     Plain,
+}
+
+impl ColdStartSpec {
+    /// "auto" made concrete for a model: the start with fewer Newton
+    /// solves measured on its scenes (docs/work-precision.md, "The
+    /// interior-point start"): the shell's grow with n under the depth
+    /// bisection (7 … 38 at n = 16 … 256) and barely under the interior
+    /// point (8 … 17); the membrane disk takes 3–7 with the bisection, 11–12
+    /// from the interior point.
+    pub fn for_model(self, model: Model) -> ColdStartSpec {
+        match (self, model) {
+            (ColdStartSpec::Auto, Model::Naghdi) => ColdStartSpec::InteriorPoint,
+            (ColdStartSpec::Auto, Model::Membrane) => ColdStartSpec::DepthBisection,
+            (spec, _) => spec,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ColdStartSpec::Auto => "auto",
+            ColdStartSpec::DepthBisection => "depth-bisection",
+            ColdStartSpec::InteriorPoint => "interior-point",
+            ColdStartSpec::Plain => "plain",
+        }
+    }
 }
 
 fn default_max_iter() -> i64 {

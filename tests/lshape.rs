@@ -192,7 +192,7 @@ fn uzawa_on(
     assert_eq!(start.is_some(), coarse.is_some(), "the warm start is built");
     // The loop's options start Uzawa cold: give it the carried λ here.
     let lambda = start.as_ref().map(|s| s.lambda.clone());
-    let mut options = solver_options(&scene.solver, start, false);
+    let mut options = solver_options(&scene.solver, scene.model, start, false);
     let SolverOptions::Uzawa(uzawa) = &mut options else {
         panic!("the scene asks for Uzawa")
     };
