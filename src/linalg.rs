@@ -257,7 +257,7 @@ pub enum Factorization {
 /// interior groups and the factorisation of the Schur complement S.
 pub struct CondensedFactorization {
     plan: Arc<CondensationPlan>,
-    local: LocalFactors,
+    local: Arc<LocalFactors>,
     schur: Factorization,
     /// A and ‖A‖∞ (max entry), for the refinement of each solve: the local
     /// eliminations are not refined by S's factorisation (ρ = 1e12 shell:
@@ -667,9 +667,33 @@ pub struct ReusableFactorization {
     /// The factoriser of A, or of S when condensed.
     direct: DirectFactorizer,
     condensation: Option<Arc<CondensationPlan>>,
+    /// The last matrix's eliminated groups (its Schur terms and local
+    /// factors), kept for the next one when the caller asked
+    /// ([`ReusableFactorization::keep_eliminations`]).
+    kept: Option<KeptElimination>,
+    keep_eliminations: bool,
     /// A's kind and solves, for the fallback to A itself.
     kind: MatrixKind,
     solves: Solves,
+}
+
+/// The groups of the last matrix, eliminated: S = A_RR + `terms`.
+struct KeptElimination {
+    terms: Vec<f64>,
+    local: Arc<LocalFactors>,
+}
+
+/// What changed in a matrix since the last one a [`ReusableFactorization`]
+/// factorised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Changed {
+    /// Any entry.
+    Any,
+    /// Only entries between remaining unknowns (neither in an interior
+    /// group): the groups' eliminations are reused, S = A_RR + the kept
+    /// Schur terms. The caller vouches for it (an interior-point step
+    /// changes only its multiplier diagonal).
+    RemainingOnly,
 }
 
 /// The symbolic analysis of one matrix pattern and its counts.
@@ -735,9 +759,22 @@ impl ReusableFactorization {
             pattern: AnalysedPattern::of(a, kind),
             direct,
             condensation,
+            kept: None,
+            keep_eliminations: false,
             kind,
             solves,
         })
+    }
+
+    /// Whether to keep each condensed matrix's eliminated groups (one
+    /// array of S's size more between factorisations) for a next matrix
+    /// that changes only between remaining unknowns
+    /// ([`Changed::RemainingOnly`]); false drops the kept ones.
+    pub fn keep_eliminations(&mut self, keep: bool) {
+        self.keep_eliminations = keep;
+        if !keep {
+            self.kept = None;
+        }
     }
 
     /// Numeric factorisation of `a`, which must have the analysed pattern;
@@ -761,7 +798,7 @@ impl ReusableFactorization {
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
-        self.factorize_and_solve_matrix(Shared::Borrowed(a), b, what)
+        self.factorize_and_solve_matrix(Shared::Borrowed(a), b, Changed::Any, what)
     }
 
     /// [`ReusableFactorization::factorize_and_solve`] of a matrix the
@@ -774,13 +811,54 @@ impl ReusableFactorization {
         b: &[f64],
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
-        self.factorize_and_solve_matrix(Shared::Owned(a.clone()), b, what)
+        self.factorize_and_solve_matrix(Shared::Owned(a.clone()), b, Changed::Any, what)
+    }
+
+    /// [`ReusableFactorization::factorize_and_solve_shared`] of a matrix
+    /// that differs from the last one as `changed` says.
+    pub fn factorize_and_solve_shared_after(
+        &mut self,
+        a: &Arc<SparseColMat<usize, f64>>,
+        b: &[f64],
+        changed: Changed,
+        what: &str,
+    ) -> Result<(Factorization, Vec<f64>, f64)> {
+        self.factorize_and_solve_matrix(Shared::Owned(a.clone()), b, changed, what)
+    }
+
+    /// S and the local factors of `a`: the kept eliminations when only
+    /// entries between remaining unknowns changed, else eliminated anew
+    /// (and kept when asked; the old ones are dropped first).
+    fn condense(
+        &mut self,
+        plan: &CondensationPlan,
+        a: &SparseColMat<usize, f64>,
+        changed: Changed,
+        what: &str,
+    ) -> Result<(SparseColMat<usize, f64>, Arc<LocalFactors>)> {
+        if let (Changed::RemainingOnly, Some(kept)) = (changed, &self.kept) {
+            return Ok((plan.schur_from_terms(&kept.terms, a), kept.local.clone()));
+        }
+        self.kept = None;
+        if !self.keep_eliminations {
+            let (s, local) = plan.condense(a, what)?;
+            return Ok((s, Arc::new(local)));
+        }
+        let (terms, local) = plan.schur_terms(a, what)?;
+        let s = plan.schur_from_terms(&terms, a);
+        let local = Arc::new(local);
+        self.kept = Some(KeptElimination {
+            terms,
+            local: local.clone(),
+        });
+        Ok((s, local))
     }
 
     fn factorize_and_solve_matrix(
         &mut self,
         matrix: Shared<'_>,
         b: &[f64],
+        changed: Changed,
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let a: &SparseColMat<usize, f64> = &matrix;
@@ -791,12 +869,12 @@ impl ReusableFactorization {
                 "the matrix does not have the pattern of the symbolic analysis",
             ));
         }
-        let Some(plan) = &self.condensation else {
+        let Some(plan) = self.condensation.clone() else {
             return self.direct.factorize_and_solve(matrix.clone(), b, what);
         };
         check_entries(a, what)?;
         let storage = Storage::of(a.as_ref(), self.kind);
-        let (s, local) = plan.condense(a, what)?;
+        let (s, local) = self.condense(&plan, a, changed, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
         // S moves into its factorisation (kept there for the refinement).
         let s = Shared::Owned(Arc::new(s));
@@ -861,6 +939,7 @@ impl ReusableFactorization {
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let analyses = self.direct.symbolic_analyses;
         self.condensation = None;
+        self.kept = None;
         self.direct = DirectFactorizer::analyze(&matrix, self.kind, self.solves, what)?;
         self.direct.symbolic_analyses += analyses;
         self.direct.factorize_and_solve(matrix, b, what)

@@ -9,11 +9,12 @@ mod common;
 use common::fixed_uzawa_options;
 use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::linalg::{
-    factorize_checked, factorize_checked_with, InteriorGroups, MatrixKind, Solves,
+    factorize_checked, factorize_checked_with, Changed, InteriorGroups, MatrixKind,
+    ReusableFactorization, Solves,
 };
 use obstacle_fem::pipeline::{assemble, scene_mesh, setup_model};
 use obstacle_fem::scene::{Scene, StepForm};
-use obstacle_fem::solvers::active_set::ActiveSetOptions;
+use obstacle_fem::solvers::active_set::{ActiveSetOptions, ColdStart};
 use obstacle_fem::solvers::dual_accelerated::DualAcceleratedOptions;
 use obstacle_fem::solvers::uzawa::UzawaStep;
 use obstacle_fem::solvers::uzawa_split::UzawaSplitOptions;
@@ -215,15 +216,30 @@ fn threaded_factorisations_give_the_sequential_iterates() {
 /// The active set: the same Newton steps, the same active set at the end
 /// and the same solution to 1e-10, one symbolic analysis (of S) for all
 /// steps.
+/// Both cold starts: the interior-point steps after the first reuse the
+/// bubbles' eliminations (only the multiplier diagonal changes,
+/// `Changed::RemainingOnly`), which the whole matrix's run does not have.
 #[test]
 fn active_set_gives_the_same_active_set_and_solution_condensed() {
-    for (label, scene, overrides) in PROBLEMS {
+    for ((label, scene, overrides), cold_start) in PROBLEMS.into_iter().flat_map(|p| {
+        [
+            (p, ColdStart::DEPTH_BISECTION),
+            (p, ColdStart::INTERIOR_POINT),
+        ]
+    }) {
         let condensed = problem(scene, overrides);
         let plain = uncondensed(&condensed);
-        let options = SolverOptions::ActiveSet(ActiveSetOptions::default());
+        let options = SolverOptions::ActiveSet(ActiveSetOptions {
+            cold_start,
+            ..Default::default()
+        });
         let (with, without) = (
             solve(&condensed, &options, &[]).unwrap(),
             solve(&plain, &options, &[]).unwrap(),
+        );
+        eprintln!(
+            "{label}, {cold_start:?}: {} Newton solves condensed, {} whole",
+            with.iterations, without.iterations
         );
         assert!(with.converged && without.converged, "{label}");
         let active = |r: &SolveReport| r.lambda.iter().map(|&l| l > 0.0).collect::<Vec<_>>();
@@ -388,4 +404,73 @@ fn general_matrices_condense_with_both_couplings() {
     condensed.solve_transpose_in_place(&mut x);
     direct.solve_transpose_in_place(&mut y);
     assert!(relative(&x, &y) <= 1e-14, "transposed: {x:?} vs {y:?}");
+}
+
+/// `Changed::RemainingOnly`: after a matrix whose groups were eliminated
+/// and kept, one that differs only between remaining unknowns (here the
+/// diagonal of unknown 3, as an interior-point step changes its multiplier
+/// diagonal) is factorised from the kept eliminations; its solution agrees
+/// with a fresh condensed factorisation to round-off. `Changed::Any` after
+/// an interior entry changed eliminates anew.
+#[test]
+fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
+    // 5 unknowns; groups {1, 2} and {4}, unknowns 0 and 3 remain.
+    let entries = |d3: f64, a11: f64| {
+        let e = [
+            (0, 0, 4.0),
+            (0, 1, 1.0),
+            (1, 0, -2.0),
+            (1, 1, a11),
+            (1, 2, 0.5),
+            (2, 1, 0.7),
+            (2, 2, 2.0),
+            (2, 3, -1.0),
+            (3, 2, 0.3),
+            (3, 3, d3),
+            (3, 4, 2.0),
+            (4, 3, -0.4),
+            (4, 4, 1.5),
+            (0, 3, 0.2),
+            (3, 0, 0.9),
+        ];
+        let t: Vec<_> = e.iter().map(|&(i, j, v)| Triplet::new(i, j, v)).collect();
+        std::sync::Arc::new(SparseColMat::try_new_from_triplets(5, 5, &t).unwrap())
+    };
+    let g = InteriorGroups::from_groups([vec![1, 2], vec![4]]);
+    let b = [1.0, -2.0, 0.5, 3.0, 0.25];
+    let fresh = |a: &SparseColMat<usize, f64>| {
+        let f =
+            factorize_checked_with(a, MatrixKind::General, Solves::Few, Some(&g), "toy").unwrap();
+        let mut x = b.to_vec();
+        f.solve_in_place(&mut x);
+        x
+    };
+    let first = entries(5.0, 3.0);
+    let mut reused = ReusableFactorization::analyze_with(
+        &first,
+        MatrixKind::General,
+        Solves::Few,
+        Some(&g),
+        "toy",
+    )
+    .unwrap();
+    reused.keep_eliminations(true);
+    let (_, x, _) = reused
+        .factorize_and_solve_shared(&first, &b, "toy")
+        .unwrap();
+    assert!(relative(&x, &fresh(&first)) <= 1e-14);
+    for (changed, a) in [
+        (Changed::RemainingOnly, entries(-7.5, 3.0)),
+        (Changed::RemainingOnly, entries(1e6, 3.0)),
+        (Changed::Any, entries(1e6, -4.0)),
+    ] {
+        let (_, x, residual) = reused
+            .factorize_and_solve_shared_after(&a, &b, changed, "toy")
+            .unwrap();
+        let y = fresh(&a);
+        assert!(relative(&x, &y) <= 1e-13, "{changed:?}: {x:?} vs {y:?}");
+        assert!(residual <= 1e-14, "{changed:?}: {residual:e}");
+    }
+    assert_eq!(reused.symbolic_analyses(), 1);
+    assert_eq!(reused.numeric_factorizations(), 4);
 }

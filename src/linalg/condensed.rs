@@ -384,12 +384,56 @@ impl CondensationPlan {
         a: &SparseColMat<usize, f64>,
         what: &str,
     ) -> Result<(SparseColMat<usize, f64>, LocalFactors)> {
-        let values = a.val();
         let mut s = self.schur_pattern();
-        let s_values = s.val_mut();
+        self.add_remaining_entries(a, s.val_mut());
+        let local = self.eliminate_into(a, s.val_mut(), what)?;
+        Ok((s, local))
+    }
+
+    /// The Schur terms −Σ_g A_RI A_II⁻¹ A_IR alone (S's values without
+    /// A_RR) and the local factors: what a matrix that differs only in
+    /// entries between remaining unknowns shares
+    /// ([`CondensationPlan::schur_from_terms`]).
+    pub(super) fn schur_terms(
+        &self,
+        a: &SparseColMat<usize, f64>,
+        what: &str,
+    ) -> Result<(Vec<f64>, LocalFactors)> {
+        let mut terms = vec![0.0; self.s_row_idx.len()];
+        let local = self.eliminate_into(a, &mut terms, what)?;
+        Ok((terms, local))
+    }
+
+    /// S = A_RR + the Schur terms of [`CondensationPlan::schur_terms`]
+    /// (computed for a matrix with `a`'s interior rows and columns).
+    pub(super) fn schur_from_terms(
+        &self,
+        terms: &[f64],
+        a: &SparseColMat<usize, f64>,
+    ) -> SparseColMat<usize, f64> {
+        let mut s = self.schur_pattern();
+        s.val_mut().copy_from_slice(terms);
+        self.add_remaining_entries(a, s.val_mut());
+        s
+    }
+
+    /// s += A_RR (on S's pattern).
+    fn add_remaining_entries(&self, a: &SparseColMat<usize, f64>, s_values: &mut [f64]) {
+        let values = a.val();
         for &(k, pos) in &self.rest_entries {
             s_values[pos as usize] += values[k as usize];
         }
+    }
+
+    /// Eliminates every group: s −= A_RI A_II⁻¹ A_IR; returns the local
+    /// factors.
+    fn eliminate_into(
+        &self,
+        a: &SparseColMat<usize, f64>,
+        s_values: &mut [f64],
+        what: &str,
+    ) -> Result<LocalFactors> {
+        let values = a.val();
         let mut inverse = vec![0.0; *self.inverse_offsets.last().expect("offsets")];
         let mut coupling = vec![0.0; *self.coupling_offsets.last().expect("offsets")];
         let mut transposed_coupling = (!self.symmetric).then(|| vec![0.0; coupling.len()]);
@@ -461,14 +505,11 @@ impl CondensationPlan {
                 }
             }
         }
-        Ok((
-            s,
-            LocalFactors {
-                inverse,
-                coupling,
-                transposed_coupling,
-            },
-        ))
+        Ok(LocalFactors {
+            inverse,
+            coupling,
+            transposed_coupling,
+        })
     }
 
     /// The condensed right-hand side b_R − A_RI A_II⁻¹ b_I (transposed:
