@@ -804,19 +804,9 @@ impl ReusableFactorization {
     /// [`ReusableFactorization::factorize_and_solve`] of a matrix the
     /// factorisation keeps a share of for its refinement instead of a copy
     /// (the active set's Newton matrix: 0.1 GB per step at the shell's
-    /// n = 128); the caller changes its values only after dropping it.
+    /// n = 128); the caller changes its values only after dropping it,
+    /// and says what `changed` since the last matrix factorised.
     pub fn factorize_and_solve_shared(
-        &mut self,
-        a: &Arc<SparseColMat<usize, f64>>,
-        b: &[f64],
-        what: &str,
-    ) -> Result<(Factorization, Vec<f64>, f64)> {
-        self.factorize_and_solve_matrix(Shared::Owned(a.clone()), b, Changed::Any, what)
-    }
-
-    /// [`ReusableFactorization::factorize_and_solve_shared`] of a matrix
-    /// that differs from the last one as `changed` says.
-    pub fn factorize_and_solve_shared_after(
         &mut self,
         a: &Arc<SparseColMat<usize, f64>>,
         b: &[f64],

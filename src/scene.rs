@@ -482,9 +482,9 @@ impl ColdStartSpec {
     /// "auto" made concrete for a model: the start with fewer Newton
     /// solves measured on its scenes (docs/work-precision.md, "The
     /// interior-point start"): the shell's grow with n under the depth
-    /// bisection (7 … 38 at n = 16 … 256) and barely under the interior
-    /// point (8 … 17); the membrane disk takes 3–7 with the bisection, 11–12
-    /// from the interior point.
+    /// bisection (7 … 61 at n = 16 … 512) and not under the interior point
+    /// (8 … 17); the membrane disk takes 3–7 with the bisection, 11–12 from
+    /// the interior point.
     pub fn for_model(self, model: Model) -> ColdStartSpec {
         match (self, model) {
             (ColdStartSpec::Auto, Model::Naghdi) => ColdStartSpec::InteriorPoint,

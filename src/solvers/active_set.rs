@@ -77,10 +77,10 @@
 //! changed by at most 5 % in the last step, PDAS continues from that set,
 //! nearly exact: one to four steps. After the first step only the
 //! multiplier diagonal changes: the bubbles' eliminations are kept and
-//! reused (`Changed::RemainingOnly`). Measured on the
-//! thesis shell (tol 1e-10; 1e-8 at n = 256): 8, 13, 14, 14, 17 Newton
-//! solves at n = 16, 32, 64, 128, 256 against the depth bisection's 7, 10,
-//! 13, 20, 38 — the interior-point count barely grows with n.
+//! reused (`Changed::RemainingOnly`). Measured on the thesis shell (tol
+//! 1e-10; 1e-8 at n ≥ 256): 8, 13, 14, 16, 17, 16 Newton solves at n = 16,
+//! 32, 64, 128, 256, 512 against the depth bisection's 7, 10, 13, 20, 38,
+//! 61 — the interior-point count does not grow with n.
 //!
 //! **Stopping.** Only on the relative KKT measure (`tol`). An active set that
 //! does not change while the KKT measure is above `tol` is stagnation (the
@@ -454,6 +454,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         let (factorization, mut z, solve_residual) = factorizer.factorize_and_solve_shared(
             &newton.matrix,
             &rhs,
+            Changed::Any,
             "active-set Newton matrix",
         )?;
         report.factor_seconds += t.elapsed().as_secs_f64();
@@ -797,7 +798,7 @@ impl InteriorPoint<'_> {
         rhs[..n].copy_from_slice(&problem.rhs);
         let t = Instant::now();
         let (free, z, mut max_residual) =
-            factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, WHAT)?;
+            factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, Changed::Any, WHAT)?;
         report.factor_seconds += t.elapsed().as_secs_f64();
         check_finite(STAGE, 1, "free solve", &z)?;
         let mut x = z[..n].to_vec();
@@ -863,7 +864,7 @@ impl InteriorPoint<'_> {
         let mut k = 1;
         while k <= self.max_steps {
             k += 1;
-            // Residuals: r_d = F + Cᵀλ − A x, r_p = C x − g − s.
+            // Residuals: r_d = F + Cᵀλ − A x, r_p = C x − g − t (t: slack).
             let ax = mat_vec(&problem.matrix, &x);
             let ctl = mat_t_vec(&c.matrix, &lambda);
             let r_d: Vec<f64> = (0..n).map(|j| problem.rhs[j] + ctl[j] - ax[j]).collect();
@@ -876,7 +877,7 @@ impl InteriorPoint<'_> {
             newton.set_barrier(&delta);
             let s = &newton.scale;
             // Row n + i: s_i (C dx)_i − Δ_i dμ_i = s_i (r_c,i/λ_i − r_p,i),
-            // dλ = −S dμ, ds = C dx + r_p; r_c the complementarity target.
+            // dλ = −S dμ, dt = C dx + r_p; r_c the complementarity target.
             let rhs_of = |r_c: &dyn Fn(usize) -> f64, rhs: &mut [f64]| {
                 rhs[..n].copy_from_slice(&r_d);
                 for i in 0..m {
@@ -888,7 +889,7 @@ impl InteriorPoint<'_> {
                 let cdx = mat_vec(&c.matrix, &z[..n]);
                 (dl, (0..m).map(|i| cdx[i] + r_p[i]).collect())
             };
-            // Predictor (affine scaling): r_c = −λ∘s.
+            // Predictor (affine scaling): r_c = −λ∘t.
             rhs_of(&|i| -slack[i] * lambda[i], &mut rhs);
             // After the first step only the multiplier diagonal changes:
             // the bubbles' eliminations are reused.
@@ -898,36 +899,36 @@ impl InteriorPoint<'_> {
             };
             let t = Instant::now();
             let (f, z, residual) =
-                factorizer.factorize_and_solve_shared_after(&newton.matrix, &rhs, changed, WHAT)?;
+                factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, changed, WHAT)?;
             report.factor_seconds += t.elapsed().as_secs_f64();
             max_residual = max_residual.max(residual);
             check_finite(STAGE, k, "interior-point predictor", &z)?;
-            let (dl_aff, ds_aff) = direction(&z);
-            let a_aff = step_to_boundary(&slack, &ds_aff).min(step_to_boundary(&lambda, &dl_aff));
+            let (dl_aff, dt_aff) = direction(&z);
+            let a_aff = step_to_boundary(&slack, &dt_aff).min(step_to_boundary(&lambda, &dl_aff));
             let mu_aff = (0..m)
-                .map(|i| (slack[i] + a_aff * ds_aff[i]) * (lambda[i] + a_aff * dl_aff[i]))
+                .map(|i| (slack[i] + a_aff * dt_aff[i]) * (lambda[i] + a_aff * dl_aff[i]))
                 .sum::<f64>()
                 / m as f64;
             let sigma = (mu_aff / mu).powi(3).min(1.0);
-            // Corrector: r_c = σμ − λ∘s − dλ_aff∘ds_aff, the same factorisation.
+            // Corrector: r_c = σμ − λ∘t − dλ_aff∘dt_aff, the same factorisation.
             rhs_of(
-                &|i| sigma * mu - slack[i] * lambda[i] - dl_aff[i] * ds_aff[i],
+                &|i| sigma * mu - slack[i] * lambda[i] - dl_aff[i] * dt_aff[i],
                 &mut rhs,
             );
             let mut z = rhs.clone();
             f.solve_in_place(&mut z);
             drop(f);
             check_finite(STAGE, k, "interior-point corrector", &z)?;
-            let (dl, ds) = direction(&z);
+            let (dl, dt) = direction(&z);
             let alpha = (STEP_TO_BOUNDARY
-                * step_to_boundary(&slack, &ds).min(step_to_boundary(&lambda, &dl)))
+                * step_to_boundary(&slack, &dt).min(step_to_boundary(&lambda, &dl)))
             .min(1.0);
             x.iter_mut().zip(&z[..n]).for_each(|(v, d)| *v += alpha * d);
             lambda
                 .iter_mut()
                 .zip(&dl)
                 .for_each(|(v, d)| *v += alpha * d);
-            slack.iter_mut().zip(&ds).for_each(|(v, d)| *v += alpha * d);
+            slack.iter_mut().zip(&dt).for_each(|(v, d)| *v += alpha * d);
             let before = std::mem::replace(&mut predicted, self.predicted_set(&x, &lambda));
             self.record(
                 report,
