@@ -286,27 +286,30 @@ impl NewtonMatrix {
     /// Every constraint row and multiplier column on, with the diagonal
     /// −Δ_i of an interior-point step.
     fn set_barrier(&mut self, delta: &[f64]) {
-        let values = Arc::get_mut(&mut self.matrix)
-            .expect("the previous step's factorisation is dropped")
-            .val_mut();
-        for (i, &d) in delta.iter().enumerate() {
-            for &(pos, v) in &self.entries[i] {
-                values[pos] = v;
-            }
-            values[self.diagonal[i]] = -d;
-        }
+        self.set_rows(|i| (true, -delta[i]));
     }
 
     /// Switches the constraint rows and multiplier columns to the active set.
     fn set_active(&mut self, active: &[bool]) {
+        let d = self.d;
+        self.set_rows(|i| match active[i] {
+            true => (true, 0.0),
+            false => (false, -d),
+        });
+    }
+
+    /// Row n + i (and column n + i) on or off, with its diagonal value:
+    /// `row(i)` = (on, diagonal).
+    fn set_rows(&mut self, row: impl Fn(usize) -> (bool, f64)) {
         let values = Arc::get_mut(&mut self.matrix)
             .expect("the previous step's factorisation is dropped")
             .val_mut();
-        for (i, &on) in active.iter().enumerate() {
-            for &(pos, v) in &self.entries[i] {
+        for (i, entries) in self.entries.iter().enumerate() {
+            let (on, diagonal) = row(i);
+            for &(pos, v) in entries {
                 values[pos] = if on { v } else { 0.0 };
             }
-            values[self.diagonal[i]] = if on { 0.0 } else { -self.d };
+            values[self.diagonal[i]] = diagonal;
         }
     }
 }
