@@ -364,22 +364,21 @@ fn wrong_group_declarations_are_errors_naming_the_group() {
     );
 }
 
-/// A non-symmetric matrix (LU on S, the local V = A_RI A_II⁻¹ kept apart):
-/// A x = b and Aᵀ x = b agree with the uncondensed LU to round-off.
-#[test]
-fn general_matrices_condense_with_both_couplings() {
-    // 5 unknowns; groups {1, 2} and {4}, unknowns 0 and 3 remain.
+/// A non-symmetric 5×5 matrix with the groups {1, 2} and {4} (unknowns 0
+/// and 3 remain); `a33` and `a11` are the entries (3, 3) (between remaining
+/// unknowns) and (1, 1) (interior), 5 and 3 unless a test changes them.
+fn general_toy(a33: f64, a11: f64) -> (SparseColMat<usize, f64>, InteriorGroups) {
     let entries = [
         (0, 0, 4.0),
         (0, 1, 1.0),
         (1, 0, -2.0),
-        (1, 1, 3.0),
+        (1, 1, a11),
         (1, 2, 0.5),
         (2, 1, 0.7),
         (2, 2, 2.0),
         (2, 3, -1.0),
         (3, 2, 0.3),
-        (3, 3, 5.0),
+        (3, 3, a33),
         (3, 4, 2.0),
         (4, 3, -0.4),
         (4, 4, 1.5),
@@ -391,7 +390,14 @@ fn general_matrices_condense_with_both_couplings() {
         .map(|&(i, j, v)| Triplet::new(i, j, v))
         .collect();
     let a = SparseColMat::try_new_from_triplets(5, 5, &t).unwrap();
-    let g = InteriorGroups::from_groups([vec![1, 2], vec![4]]);
+    (a, InteriorGroups::from_groups([vec![1, 2], vec![4]]))
+}
+
+/// A non-symmetric matrix (LU on S, the local V = A_RI A_II⁻¹ kept apart):
+/// A x = b and Aᵀ x = b agree with the uncondensed LU to round-off.
+#[test]
+fn general_matrices_condense_with_both_couplings() {
+    let (a, g) = general_toy(5.0, 3.0);
     let condensed =
         factorize_checked_with(&a, MatrixKind::General, Solves::Few, Some(&g), "toy").unwrap();
     let direct = factorize_checked(&a, MatrixKind::General, Solves::Few, "toy").unwrap();
@@ -414,29 +420,8 @@ fn general_matrices_condense_with_both_couplings() {
 /// an interior entry changed eliminates anew.
 #[test]
 fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
-    // 5 unknowns; groups {1, 2} and {4}, unknowns 0 and 3 remain.
-    let entries = |d3: f64, a11: f64| {
-        let e = [
-            (0, 0, 4.0),
-            (0, 1, 1.0),
-            (1, 0, -2.0),
-            (1, 1, a11),
-            (1, 2, 0.5),
-            (2, 1, 0.7),
-            (2, 2, 2.0),
-            (2, 3, -1.0),
-            (3, 2, 0.3),
-            (3, 3, d3),
-            (3, 4, 2.0),
-            (4, 3, -0.4),
-            (4, 4, 1.5),
-            (0, 3, 0.2),
-            (3, 0, 0.9),
-        ];
-        let t: Vec<_> = e.iter().map(|&(i, j, v)| Triplet::new(i, j, v)).collect();
-        std::sync::Arc::new(SparseColMat::try_new_from_triplets(5, 5, &t).unwrap())
-    };
-    let g = InteriorGroups::from_groups([vec![1, 2], vec![4]]);
+    let entries = |a33: f64, a11: f64| std::sync::Arc::new(general_toy(a33, a11).0);
+    let (_, g) = general_toy(5.0, 3.0);
     let b = [1.0, -2.0, 0.5, 3.0, 0.25];
     let fresh = |a: &SparseColMat<usize, f64>| {
         let f =

@@ -88,10 +88,10 @@
 //! an earlier iteration is cycling (possible when A is not an M-matrix);
 //! both are errors that say so. `max_iter` gives a non-converged report.
 
-use super::measures::kkt_measures;
+use super::measures::{kkt_measures, kkt_measures_with, KktMeasures, Products};
 use super::monitor::check_finite;
 use super::uzawa::solve_unconstrained;
-use super::{named, ContactProblem, ReportBuilder, SolveReport};
+use super::{named, Constraint, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::linalg::{refine, Changed, MatrixKind, ReusableFactorization, Solves};
@@ -356,12 +356,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         .clone()
         .unwrap_or_else(|| vec![0.0; m]);
     let mut active: Vec<bool> = match &options.initial_x {
-        Some(x0) => {
-            let cx = mat_vec(&c.matrix, x0);
-            (0..m)
-                .map(|i| lambda0[i] - c_rule[i] * c.mean_gap(&cx, i) > 0.0)
-                .collect()
-        }
+        Some(x0) => pdas_rule(c, &c_rule, &mat_vec(&c.matrix, x0), &lambda0),
         None if options.initial_lambda.is_some() => lambda0.iter().map(|&l| l > 0.0).collect(),
         None => c.obstacle.iter().map(|&g| g > 0.0).collect(),
     };
@@ -394,12 +389,9 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             options.show_progress,
         );
     let mut seen: Vec<Vec<bool>> = Vec::new();
+    let cold = options.initial_lambda.is_none() && options.initial_x.is_none();
     let mut bisection = match options.cold_start {
-        ColdStart::DepthBisection { probes }
-            if options.initial_lambda.is_none() && options.initial_x.is_none() =>
-        {
-            Some(DepthBisection::new(probes))
-        }
+        ColdStart::DepthBisection { probes } if cold => Some(DepthBisection::new(probes)),
         _ => None,
     };
     let mut probes = 0usize;
@@ -409,7 +401,6 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     let mut max_linear_residual = 0.0f64;
     let mut interior_point_steps = 0;
     let mut first_step = 1;
-    let cold = options.initial_lambda.is_none() && options.initial_x.is_none();
     if let (
         ColdStart::InteriorPoint {
             handover,
@@ -511,9 +502,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         }
         // The next active set.
         let gaps: Vec<f64> = (0..m).map(|i| c.mean_gap(&cx, i)).collect();
-        let mut next: Vec<bool> = (0..m)
-            .map(|i| lambda[i] - c_rule[i] * gaps[i] > 0.0)
-            .collect();
+        let mut next = pdas_rule(c, &c_rule, &cx, &lambda);
         if let Some(b) = bisection.as_mut() {
             match b.propose(&c.matrix, &active, &lambda, &gaps, next) {
                 Probe::Next(set) => {
@@ -576,6 +565,13 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
 
 fn count(set: &[bool]) -> usize {
     set.iter().filter(|&&a| a).count()
+}
+
+/// The PDAS rule's set {i : λ_i − c_i ḡ_i > 0}, ḡ the mean gaps of C x.
+fn pdas_rule(c: &Constraint, c_rule: &[f64], cx: &[f64], lambda: &[f64]) -> Vec<bool> {
+    (0..lambda.len())
+        .map(|i| lambda[i] - c_rule[i] * c.mean_gap(cx, i) > 0.0)
+        .collect()
 }
 
 /// S̃_ii = (1/w_i) Σ_j C_ij² / |A_jj|: the diagonal of the mean-form dual
@@ -806,14 +802,12 @@ impl InteriorPoint<'_> {
         check_finite(STAGE, 1, "free solve", &z)?;
         let mut x = z[..n].to_vec();
         let mut lambda = vec![0.0; m];
-        let cx = mat_vec(&c.matrix, &x);
-        let mut predicted = self.predicted_set(&x, &lambda);
+        let mut products = IterateProducts::of(problem, &x, &lambda);
+        let mut predicted = pdas_rule(c, self.c_rule, &products.cx, &lambda);
         self.record(
             report,
-            1,
-            0.0,
-            &x,
-            &lambda,
+            (1, 0.0),
+            products.measures(problem, &x, &lambda),
             &predicted,
             &vec![false; m],
             max_residual,
@@ -827,7 +821,7 @@ impl InteriorPoint<'_> {
                 max_linear_residual: max_residual,
             });
         }
-        let gap: Vec<f64> = (0..m).map(|i| cx[i] - c.obstacle[i]).collect();
+        let gap: Vec<f64> = (0..m).map(|i| products.cx[i] - c.obstacle[i]).collect();
         let penetration: Vec<f64> = gap.iter().map(|&g| (-g).max(0.0)).collect();
         let p_max = norm_inf(&penetration);
         if p_max == 0.0 {
@@ -864,14 +858,15 @@ impl InteriorPoint<'_> {
             })
             .collect();
         let mut slack: Vec<f64> = lambda.iter().map(|l| mu0 / l).collect();
+        products.ct_lambda = mat_t_vec(&c.matrix, &lambda);
         let mut k = 1;
         while k <= self.max_steps {
             k += 1;
             // Residuals: r_d = F + Cᵀλ − A x, r_p = C x − g − t (t: slack).
-            let ax = mat_vec(&problem.matrix, &x);
-            let ctl = mat_t_vec(&c.matrix, &lambda);
-            let r_d: Vec<f64> = (0..n).map(|j| problem.rhs[j] + ctl[j] - ax[j]).collect();
-            let cx = mat_vec(&c.matrix, &x);
+            let IterateProducts { ax, cx, ct_lambda } = &products;
+            let r_d: Vec<f64> = (0..n)
+                .map(|j| problem.rhs[j] + ct_lambda[j] - ax[j])
+                .collect();
             let r_p: Vec<f64> = (0..m).map(|i| cx[i] - c.obstacle[i] - slack[i]).collect();
             let mu = dot(&slack, &lambda) / m as f64;
             let delta: Vec<f64> = (0..m)
@@ -932,18 +927,17 @@ impl InteriorPoint<'_> {
                 .zip(&dl)
                 .for_each(|(v, d)| *v += alpha * d);
             slack.iter_mut().zip(&dt).for_each(|(v, d)| *v += alpha * d);
-            let before = std::mem::replace(&mut predicted, self.predicted_set(&x, &lambda));
-            self.record(
+            products = IterateProducts::of(problem, &x, &lambda);
+            let next = pdas_rule(c, self.c_rule, &products.cx, &lambda);
+            let before = std::mem::replace(&mut predicted, next);
+            let changes = self.record(
                 report,
-                k,
-                alpha * norm_inf(&dl),
-                &x,
-                &lambda,
+                (k, alpha * norm_inf(&dl)),
+                products.measures(problem, &x, &lambda),
                 &predicted,
                 &before,
                 residual,
             );
-            let changes = (0..m).filter(|&i| predicted[i] != before[i]).count();
             let settled = changes as f64 <= SETTLED_SET_CHANGE * count(&predicted) as f64;
             if report.measures.kkt <= self.handover && settled {
                 break;
@@ -958,34 +952,18 @@ impl InteriorPoint<'_> {
         })
     }
 
-    /// The PDAS rule's set {λ_i − c_i ḡ_i(x) > 0}.
-    fn predicted_set(&self, x: &[f64], lambda: &[f64]) -> Vec<bool> {
-        let c = self
-            .problem
-            .constraint
-            .as_ref()
-            .expect("a constrained problem");
-        let cx = mat_vec(&c.matrix, x);
-        (0..lambda.len())
-            .map(|i| lambda[i] - self.c_rule[i] * c.mean_gap(&cx, i) > 0.0)
-            .collect()
-    }
-
-    /// History row k of an interior-point step: `active` is the predicted
-    /// set, `changes` against the previous step's.
-    #[allow(clippy::too_many_arguments)]
+    /// History row k of an interior-point step (`step` = (k, its dual
+    /// step)): `active` is the predicted set, `changes` against the
+    /// previous step's, which it returns.
     fn record(
         &self,
         report: &mut ReportBuilder,
-        k: usize,
-        dual_step: f64,
-        x: &[f64],
-        lambda: &[f64],
+        (k, dual_step): (usize, f64),
+        measures: KktMeasures,
         predicted: &[bool],
         before: &[bool],
         linear_residual: f64,
-    ) {
-        let measures = kkt_measures(self.problem, x, lambda, None);
+    ) -> usize {
         let added = (0..predicted.len())
             .filter(|&i| predicted[i] && !before[i])
             .count();
@@ -1004,6 +982,35 @@ impl InteriorPoint<'_> {
                 linear_residual,
             ],
         );
+        added + removed
+    }
+}
+
+/// A x, C x and Cᵀλ of an interior-point iterate: its measures, its
+/// predicted set and the next step's residuals read them.
+struct IterateProducts {
+    ax: Vec<f64>,
+    cx: Vec<f64>,
+    ct_lambda: Vec<f64>,
+}
+
+impl IterateProducts {
+    fn of(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> Self {
+        let c = problem.constraint.as_ref().expect("a constrained problem");
+        IterateProducts {
+            ax: mat_vec(&problem.matrix, x),
+            cx: mat_vec(&c.matrix, x),
+            ct_lambda: mat_t_vec(&c.matrix, lambda),
+        }
+    }
+
+    fn measures(&self, problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> KktMeasures {
+        let products = Products {
+            ax: Some(&self.ax),
+            cx: Some(&self.cx),
+            ct_lambda: Some(&self.ct_lambda),
+        };
+        kkt_measures_with(problem, x, lambda, products)
     }
 }
 
