@@ -381,13 +381,12 @@ impl CondensedFactorization {
         )
     }
 
+    /// One solve, not refined against A; nor is S's LDLᵀ solve refined
+    /// against S, except transposed: the other callers refine against A,
+    /// whose residual S's own refinement would only anticipate.
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
         let mut x_r = self.plan.condense_rhs(&self.local, b, transpose);
-        if transpose {
-            self.schur.solve_transpose_in_place(&mut x_r);
-        } else {
-            self.schur.solve_in_place(&mut x_r);
-        }
+        self.schur.unrefined_solve_in_place(&mut x_r, transpose);
         self.plan.recover(&self.local, &x_r, b, transpose);
     }
 
@@ -638,7 +637,16 @@ pub fn refine(
 
 /// Index of the first non-finite entry of `v`, if any.
 pub fn first_non_finite(v: &[f64]) -> Option<usize> {
-    v.iter().position(|x| !x.is_finite())
+    // Blocks without an early exit (they vectorise), then the position.
+    const BLOCK: usize = 256;
+    let block = v
+        .chunks(BLOCK)
+        .position(|c| c.iter().fold(false, |bad, x| bad | !x.is_finite()))?;
+    let start = block * BLOCK;
+    v[start..]
+        .iter()
+        .position(|x| !x.is_finite())
+        .map(|k| start + k)
 }
 
 /// The symbolic analysis of a factorisation, by kind.
@@ -1261,15 +1269,61 @@ impl AnalysedPattern {
     }
 }
 
-/// A 64-bit hash of `a`'s pattern (FxHash's multiply-rotate step over each
-/// column's length and row indices: one pass, memory speed).
+/// A 64-bit hash of `a`'s pattern: every column's length, then every row
+/// index, column by column ([`PatternHasher`]).
 fn pattern_hash(a: &SparseColMat<usize, f64>) -> u64 {
-    let step = |h: u64, x: u64| (h.rotate_left(5) ^ x).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    (0..a.ncols()).fold(0u64, |h, j| {
-        let rows = a.symbolic().row_idx_of_col_raw(j);
-        rows.iter()
-            .fold(step(h, rows.len() as u64), |h, &i| step(h, i as u64))
-    })
+    let s = a.symbolic();
+    let mut hash = PatternHasher::default();
+    for j in 0..a.ncols() {
+        hash.push(s.row_idx_of_col_raw(j).len());
+    }
+    match s.col_nnz() {
+        // Compressed: the row indices are one slice.
+        None => hash.extend(&s.row_idx()[..s.col_ptr()[a.ncols()]]),
+        Some(_) => (0..a.ncols()).for_each(|j| hash.extend(s.row_idx_of_col_raw(j))),
+    }
+    hash.finish()
+}
+
+/// FxHash's multiply-rotate step dealt round-robin to four independent
+/// chains: one chain waits for a multiply per value (the shell's n = 128
+/// Newton matrix: 37 ms of every Newton step with the entry check), four
+/// run at memory speed. The hash depends on the sequence only, not on how
+/// it is cut into `extend` calls.
+#[derive(Default)]
+struct PatternHasher {
+    lanes: [u64; 4],
+    pushed: usize,
+}
+
+impl PatternHasher {
+    fn step(h: u64, x: usize) -> u64 {
+        (h.rotate_left(5) ^ x as u64).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95)
+    }
+
+    fn push(&mut self, x: usize) {
+        let lane = self.pushed % 4;
+        self.lanes[lane] = Self::step(self.lanes[lane], x);
+        self.pushed += 1;
+    }
+
+    fn extend(&mut self, values: &[usize]) {
+        let head = ((4 - self.pushed % 4) % 4).min(values.len());
+        values[..head].iter().for_each(|&x| self.push(x));
+        let mut blocks = values[head..].chunks_exact(4);
+        for block in &mut blocks {
+            for (lane, &x) in self.lanes.iter_mut().zip(block) {
+                *lane = Self::step(*lane, x);
+            }
+        }
+        self.pushed += 4 * ((values.len() - head) / 4);
+        blocks.remainder().iter().for_each(|&x| self.push(x));
+    }
+
+    fn finish(&self) -> u64 {
+        let mixed = self.lanes.iter().fold(0, |h, &l| Self::step(h, l as usize));
+        Self::step(mixed, self.pushed)
+    }
 }
 
 /// The pattern of `a` in compact form.
@@ -1300,6 +1354,28 @@ impl Factorization {
                 .chunks_exact_mut(n)
                 .for_each(|col| f.solve_in_place(col, false)),
         }
+    }
+
+    /// One solve with the factors as they are: an LDLᵀ's regularised
+    /// pivots leave a residual (~1e-8) that the caller's refinement against
+    /// a larger matrix removes. Aᵀ x = b when `transpose`, refined as
+    /// [`Factorization::solve_transpose_in_place`] (its caller does not).
+    fn unrefined_solve_in_place(&self, b: &mut [f64], transpose: bool) {
+        match self {
+            // The transposed condensed solve is not refined against A.
+            _ if transpose => self.solve_transpose_in_place(b),
+            Factorization::Ldlt(f) => f.raw_solve(b, 1),
+            Factorization::Condensed(f) => f.raw_solve(b, false),
+            _ => self.solve_in_place(b),
+        }
+    }
+
+    /// Solves A x = b in place without refinement: for a direction that
+    /// need not be exact (an interior-point corrector; its relative
+    /// residual is that of the regularised pivots, ~1e-8), at the cost of
+    /// one sweep through the factors and no product with A.
+    pub fn solve_unrefined_in_place(&self, b: &mut [f64]) {
+        self.unrefined_solve_in_place(b, false);
     }
 
     /// Solves Aᵀ X = B in place for the k columns of B (column-major).
@@ -1336,12 +1412,16 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
     for _ in 0..3 {
         let mut row_max = vec![0.0f64; n];
         for j in 0..n {
+            // Column j's own maximum in a register: one scattered update
+            // per entry instead of two (max is exact: the same d).
+            let (dj, mut col_max) = (d[j], 0.0f64);
             for k in col_ptr[j]..col_ptr[j + 1] {
                 let i = row_idx[k];
-                let v = (values[k] * d[i] * d[j]).abs();
+                let v = (values[k] * d[i] * dj).abs();
                 row_max[i] = row_max[i].max(v);
-                row_max[j] = row_max[j].max(v);
+                col_max = col_max.max(v);
             }
+            row_max[j] = row_max[j].max(col_max);
         }
         for (di, m) in d.iter_mut().zip(&row_max) {
             if *m > 0.0 && m.is_finite() {
@@ -1810,6 +1890,37 @@ mod tests {
         assert_eq!(expanded.symbolic().col_ptr(), whole.symbolic().col_ptr());
         assert_eq!(expanded.symbolic().row_idx(), whole.symbolic().row_idx());
         assert_eq!(expanded.val(), whole.val());
+    }
+
+    #[test]
+    fn the_pattern_hash_depends_on_the_pattern_only() {
+        // The same sequence cut differently hashes the same.
+        let values: Vec<usize> = (0..23).map(|k| (k * 7919) % 31).collect();
+        let mut whole = PatternHasher::default();
+        whole.extend(&values);
+        for cut in [(1, 2), (3, 9), (5, 5), (0, 22)] {
+            let mut parts = PatternHasher::default();
+            parts.extend(&values[..cut.0]);
+            values[cut.0..cut.1].iter().for_each(|&x| parts.push(x));
+            parts.extend(&values[cut.1..]);
+            assert_eq!(parts.finish(), whole.finish(), "cut {cut:?}");
+        }
+        // A compressed matrix and an uncompressed one of the same pattern
+        // (other values, slack in the index storage) match; another
+        // pattern does not.
+        let (full, lower) = symmetric();
+        let s = full.symbolic();
+        let (mut col_ptr, mut col_nnz, mut row_idx) = (vec![0], Vec::new(), Vec::new());
+        for j in 0..4 {
+            row_idx.extend(s.row_idx_of_col_raw(j));
+            row_idx.push(0);
+            col_nnz.push(s.row_idx_of_col_raw(j).len());
+            col_ptr.push(row_idx.len());
+        }
+        let loose = SymbolicSparseColMat::new_checked(4, 4, col_ptr, Some(col_nnz), row_idx);
+        let loose = SparseColMat::new(loose, vec![2.0; 4 + full.val().len()]);
+        assert_eq!(pattern_hash(&loose), pattern_hash(&full));
+        assert_ne!(pattern_hash(&lower), pattern_hash(&full));
     }
 
     /// The acceptance rules on the measured cases they were set by

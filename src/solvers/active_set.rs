@@ -914,7 +914,7 @@ impl InteriorPoint<'_> {
                 &mut rhs,
             );
             let mut z = rhs.clone();
-            f.solve_in_place(&mut z);
+            f.solve_unrefined_in_place(&mut z);
             drop(f);
             check_finite(STAGE, k, "interior-point corrector", &z)?;
             let (dl, dt) = direction(&z);
