@@ -1893,6 +1893,25 @@ mod tests {
     }
 
     #[test]
+    fn the_first_non_finite_entry_is_found_in_any_block() {
+        let mut v = vec![1.0; 1000];
+        assert_eq!(first_non_finite(&v), None);
+        for (k, bad) in [
+            (0, f64::NAN),
+            (255, f64::INFINITY),
+            (256, f64::NAN),
+            (999, -f64::INFINITY),
+        ] {
+            let old = std::mem::replace(&mut v[k], bad);
+            assert_eq!(first_non_finite(&v), Some(k));
+            v[k] = old;
+        }
+        v[700] = f64::NAN;
+        v[300] = f64::NAN;
+        assert_eq!(first_non_finite(&v), Some(300));
+    }
+
+    #[test]
     fn the_pattern_hash_depends_on_the_pattern_only() {
         // The same sequence cut differently hashes the same.
         let values: Vec<usize> = (0..23).map(|k| (k * 7919) % 31).collect();
