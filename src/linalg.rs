@@ -381,12 +381,17 @@ impl CondensedFactorization {
         )
     }
 
-    /// One solve, not refined against A; nor is S's LDLᵀ solve refined
-    /// against S, except transposed: the other callers refine against A,
-    /// whose residual S's own refinement would only anticipate.
+    /// One solve, not refined against A. Nor is S's solve refined against
+    /// S: the callers refine against A, whose residual S's own refinement
+    /// would only anticipate. The transposed solve is the exception (no
+    /// caller refines it), so S's solve is refined there.
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
         let mut x_r = self.plan.condense_rhs(&self.local, b, transpose);
-        self.schur.unrefined_solve_in_place(&mut x_r, transpose);
+        if transpose {
+            self.schur.solve_transpose_in_place(&mut x_r);
+        } else {
+            self.schur.solve_unrefined_in_place(&mut x_r);
+        }
         self.plan.recover(&self.local, &x_r, b, transpose);
     }
 
@@ -1356,26 +1361,18 @@ impl Factorization {
         }
     }
 
-    /// One solve with the factors as they are: an LDLᵀ's regularised
-    /// pivots leave a residual (~1e-8) that the caller's refinement against
-    /// a larger matrix removes. Aᵀ x = b when `transpose`, refined as
-    /// [`Factorization::solve_transpose_in_place`] (its caller does not).
-    fn unrefined_solve_in_place(&self, b: &mut [f64], transpose: bool) {
+    /// Solves A x = b in place with the factors as they are, without
+    /// refinement: one sweep through the factors and no product with A.
+    /// An LDLᵀ's regularised pivots leave a relative residual ~1e-8, which
+    /// is enough for a direction (an interior-point corrector) or for a
+    /// caller that refines against a larger matrix (S inside a condensed
+    /// solve). Cholesky and LU solves are not refined anyway.
+    pub fn solve_unrefined_in_place(&self, b: &mut [f64]) {
         match self {
-            // The transposed condensed solve is not refined against A.
-            _ if transpose => self.solve_transpose_in_place(b),
             Factorization::Ldlt(f) => f.raw_solve(b, 1),
             Factorization::Condensed(f) => f.raw_solve(b, false),
             _ => self.solve_in_place(b),
         }
-    }
-
-    /// Solves A x = b in place without refinement: for a direction that
-    /// need not be exact (an interior-point corrector; its relative
-    /// residual is that of the regularised pivots, ~1e-8), at the cost of
-    /// one sweep through the factors and no product with A.
-    pub fn solve_unrefined_in_place(&self, b: &mut [f64]) {
-        self.unrefined_solve_in_place(b, false);
     }
 
     /// Solves Aᵀ X = B in place for the k columns of B (column-major).
