@@ -3,15 +3,18 @@
 //! same pattern can be refactorised numerically only.
 
 use crate::error::{Error, Result};
+use faer::dyn_stack::StackReq;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::solvers::Solve;
 use faer::perm::PermRef;
 use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, simplicial, supernodal, LdltRef, SymbolicCholesky,
+    SymbolicCholeskyRaw, SymmetricOrdering,
 };
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
+use faer::sparse::utils::{permute_self_adjoint_scratch, permute_self_adjoint_to_unsorted};
 use faer::sparse::{FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat, Triplet};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
@@ -680,19 +683,33 @@ pub struct ReusableFactorization {
     /// The factoriser of A, or of S when condensed.
     direct: DirectFactorizer,
     condensation: Option<Arc<CondensationPlan>>,
-    /// The last matrix's eliminated groups (its Schur terms and local
-    /// factors), kept for the next one when the caller asked
-    /// ([`ReusableFactorization::keep_eliminations`]).
+    /// S of the last condensed matrix (shared with its factorisation), whose
+    /// arrays the next one reuses once that factorisation is dropped: S's
+    /// pattern exists once, not also in the plan and in a copy per matrix
+    /// (the shell at n = 256: 118 MB of row indices).
+    schur: Option<SharedMatrix>,
+    /// The last matrix's eliminated groups (its local factors and the
+    /// Schur terms where declared entries land), kept for the next one when
+    /// the caller asked ([`ReusableFactorization::keep_eliminations`]).
     kept: Option<KeptElimination>,
-    keep_eliminations: bool,
+    /// The value positions of A the caller declared to change between the
+    /// matrices that reuse the kept eliminations.
+    changing: Option<Vec<usize>>,
     /// A's kind and solves, for the fallback to A itself.
     kind: MatrixKind,
     solves: Solves,
 }
 
-/// The groups of the last matrix, eliminated: S = A_RR + `terms`.
+/// A matrix shared with the factorisations that refine against it.
+type SharedMatrix = Arc<SparseColMat<usize, f64>>;
+
+/// The groups of the last matrix, eliminated. S differs from the last
+/// one only where a declared entry of A lands: there it is the Schur term
+/// plus that entry.
 struct KeptElimination {
-    terms: Vec<f64>,
+    /// (A value position, S value position, Schur term there) of each
+    /// declared entry.
+    terms: Vec<(usize, usize, f64)>,
     local: Arc<LocalFactors>,
 }
 
@@ -702,11 +719,12 @@ struct KeptElimination {
 pub enum Changed {
     /// Any entry.
     Any,
-    /// Only entries between remaining unknowns (neither in an interior
-    /// group): the groups' eliminations are reused, S = A_RR + the kept
-    /// Schur terms. The caller vouches for it (an interior-point step
-    /// changes only its multiplier diagonal).
-    RemainingOnly,
+    /// Only the entries declared to
+    /// [`ReusableFactorization::keep_eliminations`] (each between remaining
+    /// unknowns): the groups' eliminations are reused, and S is the last
+    /// one with those entries updated. The caller vouches for it (an
+    /// interior-point step changes only its multiplier diagonal).
+    Declared,
 }
 
 /// The symbolic analysis of one matrix pattern and its counts.
@@ -754,40 +772,41 @@ impl ReusableFactorization {
                 format!("{}×{} is not square", a.nrows(), a.ncols()),
             ));
         }
-        let (direct, condensation) = match interior.filter(|g| !g.is_empty()) {
-            None => (DirectFactorizer::analyze(a, kind, solves, what)?, None),
+        let (direct, condensation, schur) = match interior.filter(|g| !g.is_empty()) {
+            None => (
+                DirectFactorizer::analyze(a, kind, solves, what)?,
+                None,
+                None,
+            ),
             Some(groups) => {
-                let plan = CondensationPlan::new(a, groups, kind, what)?;
-                let mut direct = DirectFactorizer::analyze(
-                    &plan.schur_pattern(),
-                    plan.schur_kind,
-                    solves,
-                    what,
-                )?;
+                let (plan, schur) = CondensationPlan::new(a, groups, kind, what)?;
+                let mut direct = DirectFactorizer::analyze(&schur, plan.schur_kind, solves, what)?;
                 direct.lu_last = false;
-                (direct, Some(Arc::new(plan)))
+                (direct, Some(Arc::new(plan)), Some(Arc::new(schur)))
             }
         };
         Ok(ReusableFactorization {
             pattern: AnalysedPattern::of(a, kind),
             direct,
             condensation,
+            schur,
             kept: None,
-            keep_eliminations: false,
+            changing: None,
             kind,
             solves,
         })
     }
 
-    /// Whether to keep each condensed matrix's eliminated groups (one
-    /// array of S's size more between factorisations) for a next matrix
-    /// that changes only between remaining unknowns
-    /// ([`Changed::RemainingOnly`]); false drops the kept ones.
-    pub fn keep_eliminations(&mut self, keep: bool) {
-        self.keep_eliminations = keep;
-        if !keep {
-            self.kept = None;
-        }
+    /// Keeps each condensed matrix's eliminated groups for next matrices
+    /// that differ from it only in the entries at the value positions
+    /// `changing` ([`Changed::Declared`]), each between remaining unknowns
+    /// (else the next factorisation is an error naming it); None drops the
+    /// kept ones. What is kept besides the local factors: one Schur term
+    /// per declared entry (it was an array of S's size, 113 MB at the
+    /// shell's n = 256).
+    pub fn keep_eliminations(&mut self, changing: Option<&[usize]>) {
+        self.changing = changing.map(<[usize]>::to_vec);
+        self.kept = None;
     }
 
     /// Numeric factorisation of `a`, which must have the analysed pattern;
@@ -831,30 +850,69 @@ impl ReusableFactorization {
 
     /// S and the local factors of `a`: the kept eliminations when only
     /// entries between remaining unknowns changed, else eliminated anew
-    /// (and kept when asked; the old ones are dropped first).
+    /// (and kept when asked; the old ones are dropped first). S is written
+    /// into the last one's arrays when its factorisation is gone.
     fn condense(
         &mut self,
         plan: &CondensationPlan,
         a: &SparseColMat<usize, f64>,
         changed: Changed,
         what: &str,
-    ) -> Result<(SparseColMat<usize, f64>, Arc<LocalFactors>)> {
-        if let (Changed::RemainingOnly, Some(kept)) = (changed, &self.kept) {
-            return Ok((plan.schur_from_terms(&kept.terms, a), kept.local.clone()));
+    ) -> Result<(SharedMatrix, Arc<LocalFactors>)> {
+        let last = self.schur.take().expect("a condensed factoriser keeps S");
+        // The caller still holds the last factorisation: a copy.
+        let mut s = Arc::try_unwrap(last).unwrap_or_else(|shared| (*shared).clone());
+        let local = self.eliminate(plan, a, changed, s.val_mut(), what);
+        let s = Arc::new(s);
+        self.schur = Some(s.clone());
+        Ok((s, local?))
+    }
+
+    /// S's values (see [`ReusableFactorization::condense`]) and the local
+    /// factors.
+    fn eliminate(
+        &mut self,
+        plan: &CondensationPlan,
+        a: &SparseColMat<usize, f64>,
+        changed: Changed,
+        s_values: &mut [f64],
+        what: &str,
+    ) -> Result<Arc<LocalFactors>> {
+        let values = a.val();
+        if let (Changed::Declared, Some(kept)) = (changed, &self.kept) {
+            // The same sum as S = terms + A_RR everywhere: bit for bit.
+            for &(k, pos, term) in &kept.terms {
+                s_values[pos] = term + values[k];
+            }
+            return Ok(kept.local.clone());
         }
         self.kept = None;
-        if !self.keep_eliminations {
-            let (s, local) = plan.condense(a, what)?;
-            return Ok((s, Arc::new(local)));
-        }
-        let (terms, local) = plan.schur_terms(a, what)?;
-        let s = plan.schur_from_terms(&terms, a);
-        let local = Arc::new(local);
+        let Some(changing) = &self.changing else {
+            return Ok(Arc::new(plan.condense_into(a, s_values, what)?));
+        };
+        // The Schur terms first, then A_RR on top: the declared entries'
+        // terms are read in between.
+        s_values.fill(0.0);
+        let local = Arc::new(plan.eliminate_into(a, s_values, what)?);
+        let terms = changing
+            .iter()
+            .map(|&k| {
+                let pos = plan.schur_position(k).ok_or_else(|| {
+                    Error::numerical(
+                        what,
+                        "declared entry",
+                        format!("value {k} of the matrix is not between remaining unknowns"),
+                    )
+                })?;
+                Ok((k, pos, s_values[pos]))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        plan.add_remaining_entries(a, s_values);
         self.kept = Some(KeptElimination {
             terms,
             local: local.clone(),
         });
-        Ok((s, local))
+        Ok(local)
     }
 
     fn factorize_and_solve_matrix(
@@ -879,8 +937,8 @@ impl ReusableFactorization {
         let storage = Storage::of(a.as_ref(), self.kind);
         let (s, local) = self.condense(&plan, a, changed, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
-        // S moves into its factorisation (kept there for the refinement).
-        let s = Shared::Owned(Arc::new(s));
+        // S is shared with its factorisation (kept there for the refinement).
+        let s = Shared::Owned(s);
         let Ok((mut schur, x_r, schur_relative)) = self.direct.factorize_and_solve(s, &b_s, what)
         else {
             // No LDLᵀ of S met its accuracy (S takes no LU: at the shell's
@@ -942,6 +1000,7 @@ impl ReusableFactorization {
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let analyses = self.direct.symbolic_analyses;
         self.condensation = None;
+        self.schur = None;
         self.kept = None;
         self.direct = DirectFactorizer::analyze(&matrix, self.kind, self.solves, what)?;
         self.direct.symbolic_analyses += analyses;
@@ -1624,36 +1683,38 @@ impl RegularizedLdlt {
         let a = &*matrix;
         let n = a.nrows();
         let scale = symmetric_equilibration(a);
-        // D A D: A's pattern with scaled values (a copy of the values only).
-        let (col_ptr, row_idx) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
-        let mut scaled_values = a.val().to_vec();
-        for j in 0..n {
-            for k in col_ptr[j]..col_ptr[j + 1] {
-                scaled_values[k] *= scale[row_idx[k]] * scale[j];
-            }
-        }
-        let scaled = SparseColMatRef::new(a.symbolic(), &scaled_values);
-        let scaled_norm = norm_inf(&scaled_values).max(f64::MIN_POSITIVE);
         let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
         let mut values = vec![0.0; symbolic.len_val()];
         let par = parallelism();
-        let mut buffer =
-            MemBuffer::new(symbolic.factorize_numeric_ldlt_scratch::<f64>(par, Default::default()));
-        symbolic
-            .factorize_numeric_ldlt(
+        let (scaled, signs, mut buffer) =
+            ordered_equilibrated(&symbolic, a.as_ref(), &scale, &signs, par);
+        let scaled_norm = norm_inf(&scaled.values).max(f64::MIN_POSITIVE);
+        let regularization = LdltRegularization {
+            dynamic_regularization_signs: Some(&signs),
+            dynamic_regularization_delta: REGULARIZATION * scaled_norm,
+            dynamic_regularization_epsilon: f64::EPSILON * scaled_norm,
+        };
+        let stack = MemStack::new(&mut buffer);
+        let factorized = match symbolic.raw() {
+            SymbolicCholeskyRaw::Simplicial(raw) => simplicial::factorize_simplicial_numeric_ldlt(
                 &mut values,
-                scaled,
-                Side::Lower,
-                LdltRegularization {
-                    dynamic_regularization_signs: Some(&signs),
-                    dynamic_regularization_delta: REGULARIZATION * scaled_norm,
-                    dynamic_regularization_epsilon: f64::EPSILON * scaled_norm,
-                },
+                scaled.as_ref(),
+                regularization,
+                raw,
+                stack,
+            ),
+            SymbolicCholeskyRaw::Supernodal(raw) => supernodal::factorize_supernodal_numeric_ldlt(
+                &mut values,
+                scaled.as_ref(),
+                regularization,
+                raw,
                 par,
-                MemStack::new(&mut buffer),
+                stack,
                 Default::default(),
-            )
-            .map_err(|e| Error::numerical(what, "LDLᵀ", format!("zero pivot ({e:?})")))?;
+            ),
+        };
+        factorized.map_err(|e| Error::numerical(what, "LDLᵀ", format!("zero pivot ({e:?})")))?;
+        drop(scaled);
         Ok(RegularizedLdlt {
             symbolic,
             values,
@@ -1735,6 +1796,101 @@ impl RegularizedLdlt {
     }
 }
 
+/// P (D A D) Pᵀ as the numeric factorisation of `symbolic` reads it: in
+/// its order P, on its side (supernodal: lower, simplicial: upper), from
+/// A's lower triangle; with the signs in that order and the scratch of the
+/// factorisation. faer's own entry point makes this permuted copy itself,
+/// beside the caller's D A D: made here once, with the scaling applied to
+/// it, one copy of A's values less is alive at the factorisation's peak
+/// (S at the shell's n = 256: 118 MB) and the factors are the same bit for
+/// bit (each entry is v (d_i d_j) either way).
+fn ordered_equilibrated(
+    symbolic: &SymbolicCholesky<usize>,
+    a: SparseColMatRef<'_, usize, f64>,
+    scale: &[f64],
+    signs: &[i8],
+    par: Par,
+) -> (OrderedMatrix, Vec<i8>, MemBuffer) {
+    let n = a.nrows();
+    let identity: Vec<usize>;
+    let perm = match symbolic.perm() {
+        Some(perm) => perm,
+        None => {
+            identity = (0..n).collect();
+            PermRef::new_checked(&identity, &identity, n)
+        }
+    };
+    let (fwd, _) = perm.arrays();
+    let (side, factor_scratch) = match symbolic.raw() {
+        SymbolicCholeskyRaw::Simplicial(_) => (
+            Side::Upper,
+            simplicial::factorize_simplicial_numeric_ldlt_scratch::<usize, f64>(n),
+        ),
+        SymbolicCholeskyRaw::Supernodal(raw) => (
+            Side::Lower,
+            supernodal::factorize_supernodal_numeric_ldlt_scratch::<usize, f64>(
+                raw,
+                par,
+                Default::default(),
+            ),
+        ),
+    };
+    let mut buffer = MemBuffer::new(StackReq::any_of(&[
+        permute_self_adjoint_scratch::<usize>(n),
+        factor_scratch,
+    ]));
+    let nnz = a.val().len();
+    let mut ordered = OrderedMatrix {
+        col_ptr: vec![0; n + 1],
+        row_idx: vec![0; nnz],
+        values: vec![0.0; nnz],
+    };
+    permute_self_adjoint_to_unsorted(
+        &mut ordered.values,
+        &mut ordered.col_ptr,
+        &mut ordered.row_idx,
+        a,
+        perm,
+        Side::Lower,
+        side,
+        MemStack::new(&mut buffer),
+    );
+    let len = ordered.col_ptr[n];
+    ordered.row_idx.truncate(len);
+    ordered.values.truncate(len);
+    let ordered_scale: Vec<f64> = fwd.iter().map(|&i| scale[i]).collect();
+    for j in 0..n {
+        for k in ordered.col_ptr[j]..ordered.col_ptr[j + 1] {
+            ordered.values[k] *= ordered_scale[ordered.row_idx[k]] * ordered_scale[j];
+        }
+    }
+    let ordered_signs = fwd.iter().map(|&i| signs[i]).collect();
+    (ordered, ordered_signs, buffer)
+}
+
+/// A matrix in a factorisation's order ([`ordered_equilibrated`]), its
+/// rows unsorted within a column.
+struct OrderedMatrix {
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    values: Vec<f64>,
+}
+
+impl OrderedMatrix {
+    fn as_ref(&self) -> SparseColMatRef<'_, usize, f64> {
+        let n = self.col_ptr.len() - 1;
+        // Checked; rows may be unsorted within a column.
+        let symbolic = faer::sparse::SymbolicSparseColMatRef::new_unsorted_checked(
+            n,
+            n,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        );
+        SparseColMatRef::new(symbolic, &self.values)
+    }
+}
+
 /// Solves A x = b in place with `raw_solve` (an approximate inverse), then
 /// refines against `product` (A x) to round-off ([`refine_to_round_off`]);
 /// returns A x of the final x.
@@ -1796,6 +1952,42 @@ fn round_off(norm: f64, x: &[f64], b: &[f64]) -> f64 {
 /// y = A x.
 pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
     mat_vec_ref(a.as_ref(), x)
+}
+
+/// y = A x for a matrix of `kind` as this module reads it: a symmetric one
+/// given by its lower triangle implies the upper one ([`Storage`]).
+pub fn product(a: &SparseColMat<usize, f64>, kind: MatrixKind, x: &[f64]) -> Vec<f64> {
+    Storage::of(a.as_ref(), kind).product(a.as_ref(), x)
+}
+
+/// The lower triangle of `a` (its entries on and below the diagonal), made
+/// in `a`'s own arrays: a symmetric matrix's storage that every
+/// factorisation and [`product`] reads, at half the memory (the shell's A
+/// at n = 256: 1.07 GB whole, 0.53 GB lower).
+pub fn into_lower_triangle(a: SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+    let (symbolic, mut values) = a.into_parts();
+    let (nrows, ncols, mut col_ptr, col_nnz, mut row_idx) = symbolic.into_parts();
+    let mut kept = 0;
+    for j in 0..ncols {
+        let range = match &col_nnz {
+            Some(nnz) => col_ptr[j]..col_ptr[j] + nnz[j],
+            None => col_ptr[j]..col_ptr[j + 1],
+        };
+        col_ptr[j] = kept;
+        for k in range {
+            if row_idx[k] >= j {
+                (row_idx[kept], values[kept]) = (row_idx[k], values[k]);
+                kept += 1;
+            }
+        }
+    }
+    col_ptr[ncols] = kept;
+    row_idx.truncate(kept);
+    values.truncate(kept);
+    row_idx.shrink_to_fit();
+    values.shrink_to_fit();
+    let symbolic = SymbolicSparseColMat::new_checked(nrows, ncols, col_ptr, None, row_idx);
+    SparseColMat::new(symbolic, values)
 }
 
 /// y = A x for a borrowed matrix.

@@ -434,7 +434,8 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 }
 
 /// The model's contact problem, checked: finite, every multiplier acting
-/// on a free unknown (`guards::check_assembled`); its interior groups
+/// on a free unknown (`guards::check_assembled`); a symmetric A kept as
+/// its lower triangle (`ContactProblem::store_lower_triangle`); its interior groups
 /// dropped when the scene turns condensation off (`solver.condense`); the
 /// factorisations of this thread use `solver.threads`.
 pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
@@ -444,6 +445,7 @@ pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<
     }
     crate::linalg::set_threads(scene.solver.threads as usize);
     guards::check_assembled(scene, mesh, &problem)?;
+    problem.store_lower_triangle();
     Ok(problem)
 }
 

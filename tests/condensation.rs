@@ -218,7 +218,7 @@ fn threaded_factorisations_give_the_sequential_iterates() {
 /// steps.
 /// Both cold starts: the interior-point steps after the first reuse the
 /// bubbles' eliminations (only the multiplier diagonal changes,
-/// `Changed::RemainingOnly`), which the whole matrix's run does not have.
+/// `Changed::Declared`), which the whole matrix's run does not have.
 #[test]
 fn active_set_gives_the_same_active_set_and_solution_condensed() {
     for ((label, scene, overrides), cold_start) in PROBLEMS.into_iter().flat_map(|p| {
@@ -412,12 +412,13 @@ fn general_matrices_condense_with_both_couplings() {
     assert!(relative(&x, &y) <= 1e-14, "transposed: {x:?} vs {y:?}");
 }
 
-/// `Changed::RemainingOnly`: after a matrix whose groups were eliminated
-/// and kept, one that differs only between remaining unknowns (here the
-/// diagonal of unknown 3, as an interior-point step changes its multiplier
-/// diagonal) is factorised from the kept eliminations; its solution agrees
-/// with a fresh condensed factorisation to round-off. `Changed::Any` after
-/// an interior entry changed eliminates anew.
+/// `Changed::Declared`: after a matrix whose groups were eliminated and
+/// kept, one that differs only in the declared entry between remaining
+/// unknowns (here the diagonal of unknown 3, as an interior-point step
+/// changes its multiplier diagonal) is factorised from the kept
+/// eliminations; its solution agrees with a fresh condensed factorisation
+/// to round-off. `Changed::Any` after an interior entry changed eliminates
+/// anew. Declaring an entry of a group is an error naming it.
 #[test]
 fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
     let entries = |a33: f64, a11: f64| std::sync::Arc::new(general_toy(a33, a11).0);
@@ -439,14 +440,18 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
         "toy",
     )
     .unwrap();
-    reused.keep_eliminations(true);
+    // The value position of (3, 3).
+    let a33 = (first.symbolic().col_ptr()[3]..first.symbolic().col_ptr()[4])
+        .find(|&k| first.symbolic().row_idx()[k] == 3)
+        .unwrap();
+    reused.keep_eliminations(Some(&[a33]));
     let (_, x, _) = reused
         .factorize_and_solve_shared(&first, &b, Changed::Any, "toy")
         .unwrap();
     assert!(relative(&x, &fresh(&first)) <= 1e-14);
     for (changed, a) in [
-        (Changed::RemainingOnly, entries(-7.5, 3.0)),
-        (Changed::RemainingOnly, entries(1e6, 3.0)),
+        (Changed::Declared, entries(-7.5, 3.0)),
+        (Changed::Declared, entries(1e6, 3.0)),
         (Changed::Any, entries(1e6, -4.0)),
     ] {
         let (_, x, residual) = reused
@@ -458,4 +463,18 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
     }
     assert_eq!(reused.symbolic_analyses(), 1);
     assert_eq!(reused.numeric_factorizations(), 4);
+    // (1, 1) lies in the group {1, 2}.
+    let a11 = (first.symbolic().col_ptr()[1]..first.symbolic().col_ptr()[2])
+        .find(|&k| first.symbolic().row_idx()[k] == 1)
+        .unwrap();
+    reused.keep_eliminations(Some(&[a11]));
+    let err = reused
+        .factorize_and_solve_shared(&first, &b, Changed::Any, "toy")
+        .err()
+        .expect("an entry of a group declared")
+        .to_string();
+    assert!(
+        err.contains("declared entry") && err.contains(&format!("value {a11}")),
+        "{err}"
+    );
 }

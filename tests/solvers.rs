@@ -12,8 +12,8 @@ use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{
-    factorize_checked, factorize_checked_with, refine, residual, MatrixKind, ReusableFactorization,
-    Solves,
+    factorize_checked, factorize_checked_with, into_lower_triangle, refine, residual, MatrixKind,
+    ReusableFactorization, Solves,
 };
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::models::membrane::MembraneSystem;
@@ -692,16 +692,51 @@ fn ldlt_falls_back_to_lu_when_the_signs_are_wrong() {
 
 /// The lower triangle of `a` (row ≥ column).
 fn lower_triangle(a: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
-    let entries: Vec<Triplet<usize, usize, f64>> = (0..a.ncols())
-        .flat_map(|j| {
-            a.symbolic()
-                .row_idx_of_col(j)
-                .zip(a.val_of_col(j))
-                .filter(move |&(i, _)| i >= j)
-                .map(move |(i, &v)| Triplet::new(i, j, v))
-        })
+    into_lower_triangle(a.clone())
+}
+
+#[test]
+fn a_problem_stored_by_its_lower_triangle_keeps_those_entries_and_products() {
+    // The pipeline keeps a symmetric A as its lower triangle
+    // (`ContactProblem::store_lower_triangle`): exactly the entries on and
+    // below the diagonal, in order, and A x as the whole matrix gives it.
+    let (_, mut problem, _) = hypar(8, 1e3);
+    let whole = problem.matrix.clone();
+    let x: Vec<f64> = (0..problem.n())
+        .map(|i| ((i * 7919) % 101) as f64 / 101.0 - 0.5)
         .collect();
-    SparseColMat::try_new_from_triplets(a.nrows(), a.ncols(), &entries).unwrap()
+    let ax_whole = obstacle_fem::linalg::mat_vec(&whole, &x);
+    problem.store_lower_triangle();
+    let lower = &problem.matrix;
+    for j in 0..whole.ncols() {
+        let expected: Vec<(usize, f64)> = whole
+            .symbolic()
+            .row_idx_of_col(j)
+            .zip(whole.val_of_col(j).iter().copied())
+            .filter(|&(i, _)| i >= j)
+            .collect();
+        let kept: Vec<(usize, f64)> = lower
+            .symbolic()
+            .row_idx_of_col(j)
+            .zip(lower.val_of_col(j).iter().copied())
+            .collect();
+        assert_eq!(kept, expected, "column {j}");
+    }
+    assert!(lower.val().len() * 10 < whole.val().len() * 6);
+    let diff: Vec<f64> = problem
+        .product(&x)
+        .iter()
+        .zip(&ax_whole)
+        .map(|(a, b)| a - b)
+        .collect();
+    let rel = norm_inf(&diff) / norm_inf(&ax_whole);
+    println!("A x lower against whole: {rel:.1e}");
+    assert!(rel < 1e-13, "{rel:e}");
+    // A general matrix stays whole.
+    problem.matrix = whole.clone();
+    problem.kind = MatrixKind::General;
+    problem.store_lower_triangle();
+    assert_eq!(problem.matrix.val().len(), whole.val().len());
 }
 
 #[test]

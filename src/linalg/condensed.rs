@@ -113,8 +113,6 @@ pub(super) struct CondensationPlan {
     /// Offsets of each group's A_II⁻¹ (Σ p²) and W = A_II⁻¹ A_IR (Σ p q).
     inverse_offsets: Vec<usize>,
     coupling_offsets: Vec<usize>,
-    s_col_ptr: Vec<usize>,
-    s_row_idx: Vec<usize>,
     /// The kind of S.
     pub(super) schur_kind: MatrixKind,
 }
@@ -139,7 +137,7 @@ impl CondensationPlan {
         groups: &InteriorGroups,
         kind: MatrixKind,
         what: &str,
-    ) -> Result<Self> {
+    ) -> Result<(Self, SparseColMat<usize, f64>)> {
         let n = a.nrows();
         let fail = |field: String, reason: String| Error::numerical(what, &field, reason);
         let mut group_of = vec![NONE; n];
@@ -247,12 +245,16 @@ impl CondensationPlan {
                 columns[c].extend_from_slice(&b[rows_of(k)..]);
             }
         }
-        let mut s_col_ptr = Vec::with_capacity(m + 1);
-        let mut s_row_idx = Vec::new();
-        s_col_ptr.push(0);
+        // The plan's arrays are sized exactly: grown by doubling, their
+        // spare capacity was ~0.15 GB at the shell's n = 256.
         for col in &mut columns {
             col.sort_unstable();
             col.dedup();
+        }
+        let mut s_col_ptr = Vec::with_capacity(m + 1);
+        let mut s_row_idx = Vec::with_capacity(columns.iter().map(Vec::len).sum());
+        s_col_ptr.push(0);
+        for col in &mut columns {
             s_row_idx.extend_from_slice(col);
             s_col_ptr.push(s_row_idx.len());
             *col = Vec::new();
@@ -264,7 +266,15 @@ impl CondensationPlan {
             s_col_ptr[c] + rows.binary_search(&r).expect("in the pattern of S")
         };
         // Where each entry of A goes.
-        let mut rest_entries = Vec::new();
+        let rest = |i: usize, j: usize| read(i, j) && group_of[i] == NONE && group_of[j] == NONE;
+        let n_rest = (0..n)
+            .map(|j| {
+                (col_ptr[j]..col_ptr[j + 1])
+                    .filter(|&k| rest(row_idx[k], j))
+                    .count()
+            })
+            .sum();
+        let mut rest_entries = Vec::with_capacity(n_rest);
         let mut local_count = vec![0usize; groups.len() + 1];
         for j in 0..n {
             for k in col_ptr[j]..col_ptr[j + 1] {
@@ -316,7 +326,11 @@ impl CondensationPlan {
         }
         let (mut schur_offsets, mut inverse_offsets, mut coupling_offsets) =
             (vec![0], vec![0], vec![0]);
-        let mut schur_positions = Vec::new();
+        let n_terms = (0..groups.len())
+            .map(|g| boundary_offsets[g + 1] - boundary_offsets[g])
+            .map(|q| if symmetric { q * (q + 1) / 2 } else { q * q })
+            .sum();
+        let mut schur_positions = Vec::with_capacity(n_terms);
         for g in 0..groups.len() {
             let b = &boundary[boundary_offsets[g]..boundary_offsets[g + 1]];
             let (p, q) = (groups.group(g).len(), b.len());
@@ -335,7 +349,14 @@ impl CondensationPlan {
             },
             other => other,
         };
-        Ok(CondensationPlan {
+        debug_assert_eq!(
+            (rest_entries.len(), schur_positions.len()),
+            (n_rest, n_terms)
+        );
+        let s_nnz = s_row_idx.len();
+        // S's pattern is handed out: its one copy is S's own.
+        let pattern = SymbolicSparseColMat::new_checked(m, m, s_col_ptr, None, s_row_idx);
+        let plan = CondensationPlan {
             symmetric,
             groups: groups.clone(),
             remaining,
@@ -348,10 +369,9 @@ impl CondensationPlan {
             schur_positions,
             inverse_offsets,
             coupling_offsets,
-            s_col_ptr,
-            s_row_idx,
             schur_kind,
-        })
+        };
+        Ok((plan, SparseColMat::new(pattern, vec![0.0; s_nnz])))
     }
 
     /// The number of unknowns of S.
@@ -363,62 +383,34 @@ impl CondensationPlan {
         &self.boundary[self.boundary_offsets[g]..self.boundary_offsets[g + 1]]
     }
 
-    /// S with its pattern and every value zero (for the symbolic analysis).
-    pub(super) fn schur_pattern(&self) -> SparseColMat<usize, f64> {
-        let m = self.n_schur();
-        let symbolic = SymbolicSparseColMat::new_checked(
-            m,
-            m,
-            self.s_col_ptr.clone(),
-            None,
-            self.s_row_idx.clone(),
-        );
-        SparseColMat::new(symbolic, vec![0.0; self.s_row_idx.len()])
-    }
-
-    /// Eliminates every group of `a` (which has the planned pattern):
-    /// returns S and the local factors. A singular or ill-conditioned
-    /// local block is an error naming its group.
-    pub(super) fn condense(
+    /// Eliminates every group of `a` (which has the planned pattern) into
+    /// S's values (on the pattern [`CondensationPlan::new`] handed out):
+    /// returns the local factors. A singular or ill-conditioned local block
+    /// is an error naming its group.
+    pub(super) fn condense_into(
         &self,
         a: &SparseColMat<usize, f64>,
+        s_values: &mut [f64],
         what: &str,
-    ) -> Result<(SparseColMat<usize, f64>, LocalFactors)> {
-        let mut s = self.schur_pattern();
-        self.add_remaining_entries(a, s.val_mut());
-        let local = self.eliminate_into(a, s.val_mut(), what)?;
-        Ok((s, local))
+    ) -> Result<LocalFactors> {
+        s_values.fill(0.0);
+        self.add_remaining_entries(a, s_values);
+        self.eliminate_into(a, s_values, what)
     }
 
-    /// The Schur terms −Σ_g A_RI A_II⁻¹ A_IR alone (S's values without
-    /// A_RR) and the local factors: what a matrix that differs only in
-    /// entries between remaining unknowns shares
-    /// ([`CondensationPlan::schur_from_terms`]).
-    pub(super) fn schur_terms(
-        &self,
-        a: &SparseColMat<usize, f64>,
-        what: &str,
-    ) -> Result<(Vec<f64>, LocalFactors)> {
-        let mut terms = vec![0.0; self.s_row_idx.len()];
-        let local = self.eliminate_into(a, &mut terms, what)?;
-        Ok((terms, local))
-    }
-
-    /// S = A_RR + the Schur terms of [`CondensationPlan::schur_terms`]
-    /// (computed for a matrix with `a`'s interior rows and columns).
-    pub(super) fn schur_from_terms(
-        &self,
-        terms: &[f64],
-        a: &SparseColMat<usize, f64>,
-    ) -> SparseColMat<usize, f64> {
-        let mut s = self.schur_pattern();
-        s.val_mut().copy_from_slice(terms);
-        self.add_remaining_entries(a, s.val_mut());
-        s
+    /// The value position in S of A's value `k`, when it lies between
+    /// remaining unknowns (A_RR).
+    pub(super) fn schur_position(&self, k: usize) -> Option<usize> {
+        // rest_entries is in A's value order.
+        let i = self
+            .rest_entries
+            .partition_point(|&(a, _)| (a as usize) < k);
+        let &(a, pos) = self.rest_entries.get(i)?;
+        (a as usize == k).then_some(pos as usize)
     }
 
     /// s += A_RR (on S's pattern).
-    fn add_remaining_entries(&self, a: &SparseColMat<usize, f64>, s_values: &mut [f64]) {
+    pub(super) fn add_remaining_entries(&self, a: &SparseColMat<usize, f64>, s_values: &mut [f64]) {
         let values = a.val();
         for &(k, pos) in &self.rest_entries {
             s_values[pos as usize] += values[k as usize];
@@ -427,7 +419,7 @@ impl CondensationPlan {
 
     /// Eliminates every group: s −= A_RI A_II⁻¹ A_IR; returns the local
     /// factors.
-    fn eliminate_into(
+    pub(super) fn eliminate_into(
         &self,
         a: &SparseColMat<usize, f64>,
         s_values: &mut [f64],

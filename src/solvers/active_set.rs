@@ -77,7 +77,7 @@
 //! changed by at most 5 % in the last step, PDAS continues from that set,
 //! nearly exact: one to four steps. After the first step only the
 //! multiplier diagonal changes: the bubbles' eliminations are kept and
-//! reused (`Changed::RemainingOnly`). Measured on the thesis shell (tol
+//! reused, S updated on that diagonal alone (`Changed::Declared`). Measured on the thesis shell (tol
 //! 1e-10; 1e-8 at n ≥ 256): 8, 13, 14, 16, 17, 16 Newton solves at n = 16,
 //! 32, 64, 128, 256, 512 against the depth bisection's 7, 10, 13, 20, 38,
 //! 61 — the interior-point count does not grow with n.
@@ -415,9 +415,9 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             handover,
             max_steps: max_steps.min(options.max_iter.saturating_sub(1)),
         };
-        factorizer.keep_eliminations(true);
+        factorizer.keep_eliminations(Some(&newton.diagonal));
         let h = start.run(&mut newton, &mut factorizer, &mut report)?;
-        factorizer.keep_eliminations(false);
+        factorizer.keep_eliminations(None);
         max_linear_residual = h.max_linear_residual;
         interior_point_steps = h.steps - 1;
         first_step = h.steps + 1;
@@ -893,7 +893,7 @@ impl InteriorPoint<'_> {
             // the bubbles' eliminations are reused.
             let changed = match k {
                 2 => Changed::Any,
-                _ => Changed::RemainingOnly,
+                _ => Changed::Declared,
             };
             let t = Instant::now();
             let (f, z, residual) =
@@ -998,7 +998,7 @@ impl IterateProducts {
     fn of(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> Self {
         let c = problem.constraint.as_ref().expect("a constrained problem");
         IterateProducts {
-            ax: mat_vec(&problem.matrix, x),
+            ax: problem.product(x),
             cx: mat_vec(&c.matrix, x),
             ct_lambda: mat_t_vec(&c.matrix, lambda),
         }

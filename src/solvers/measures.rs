@@ -71,7 +71,7 @@ pub fn kkt_measures_with(
     let cx = products.cx;
     let mut r = match products.ax {
         Some(ax) => ax.to_vec(),
-        None => mat_vec(&problem.matrix, x),
+        None => problem.product(x),
     };
     // The scale of stationarity: the largest of its three terms ‖F‖, ‖A x‖,
     // ‖Cᵀλ‖ (primal rows), so a zero load (the obstacle alone pushes) is

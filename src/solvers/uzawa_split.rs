@@ -167,7 +167,6 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     let a = &problem.matrix;
     let k_block = block(a, 0..np, 0..np);
     let b_block = block(a, np..n, 0..np);
-    let bt_block = block(a, 0..np, np..n);
     if block(a, np..n, np..n).val().iter().any(|v| *v != 0.0) {
         return Err(Error::numerical(
             STAGE,
@@ -346,7 +345,8 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
         .with_stagnation_window(options.stall_window);
     for k in 1..=options.max_iter {
         // K U = F_U − Bᵀψ + Cᵀλ
-        let mut u = mat_vec(&bt_block, &psi);
+        // Bᵀψ from B: A may be stored as its lower triangle.
+        let mut u = mat_t_vec(&b_block, &psi);
         u.iter_mut().zip(f_u).for_each(|(ui, fi)| *ui = fi - *ui);
         if let Some(c) = &c_u {
             let ct = mat_t_vec(&c.matrix, &lambda);
