@@ -741,6 +741,31 @@ struct DirectFactorizer {
     /// Whether LU is the last fallback; false for the Schur complement of a
     /// condensed factorisation, whose last fallback is A itself.
     lu_last: bool,
+    /// The factor values of its last dropped LDLᵀ, for the next one.
+    spare_factors: Arc<SpareFactors>,
+}
+
+/// The factor values of a dropped LDLᵀ, reused by the next one of the same
+/// size: faer zeroes them itself before it factorises, so fresh zeroed
+/// memory was a second pass over the factor (1.2 GB per Newton step at the
+/// shell's n = 256).
+#[derive(Default)]
+struct SpareFactors(std::sync::Mutex<Option<Vec<f64>>>);
+
+impl SpareFactors {
+    /// `len` values: the spare ones when they fit, else zeros.
+    fn take(&self, len: usize) -> Vec<f64> {
+        let spare = self.0.lock().map(|mut s| s.take()).unwrap_or(None);
+        spare
+            .filter(|v| v.len() == len)
+            .unwrap_or_else(|| vec![0.0; len])
+    }
+
+    fn put(&self, values: Vec<f64>) {
+        if let Ok(mut spare) = self.0.lock() {
+            *spare = Some(values);
+        }
+    }
 }
 
 impl ReusableFactorization {
@@ -1073,6 +1098,7 @@ impl DirectFactorizer {
             numeric_factorizations: 0,
             fallbacks: Vec::new(),
             lu_last: true,
+            spare_factors: Arc::default(),
         })
     }
 
@@ -1109,7 +1135,7 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), storage, *n_primal, what)
+                let solved = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), storage, *n_primal, &self.spare_factors, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
@@ -1137,7 +1163,14 @@ impl DirectFactorizer {
             } => {
                 let (n_primal, order) = (*n_primal, *order);
                 let ldlt =
-                    RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), storage, n_primal, what);
+                    RegularizedLdlt::new(
+                        symbolic.clone(),
+                        matrix.to_arc(),
+                        storage,
+                        n_primal,
+                        &self.spare_factors,
+                        what,
+                    );
                 let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
                     let (x, quality) = check_solve(a, storage, &f, b, what)?;
                     Ok((f, x, quality))
@@ -1670,6 +1703,14 @@ pub struct RegularizedLdlt {
     /// condensed factorisation (which refines against A anyway) when a test
     /// solve met round-off without a step (no pivot regularised).
     raw_solves_suffice: bool,
+    /// Where the factor values go when it is dropped.
+    spare_factors: Arc<SpareFactors>,
+}
+
+impl Drop for RegularizedLdlt {
+    fn drop(&mut self) {
+        self.spare_factors.put(std::mem::take(&mut self.values));
+    }
 }
 
 impl RegularizedLdlt {
@@ -1678,13 +1719,14 @@ impl RegularizedLdlt {
         matrix: Arc<SparseColMat<usize, f64>>,
         storage: Storage,
         n_primal: usize,
+        spare_factors: &Arc<SpareFactors>,
         what: &str,
     ) -> Result<Self> {
         let a = &*matrix;
         let n = a.nrows();
         let scale = symmetric_equilibration(a);
         let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
-        let mut values = vec![0.0; symbolic.len_val()];
+        let mut values = spare_factors.take(symbolic.len_val());
         let par = parallelism();
         let (scaled, signs, mut buffer) =
             ordered_equilibrated(&symbolic, a.as_ref(), &scale, &signs, par);
@@ -1723,6 +1765,7 @@ impl RegularizedLdlt {
             storage,
             matrix,
             raw_solves_suffice: false,
+            spare_factors: spare_factors.clone(),
         })
     }
 
