@@ -177,6 +177,8 @@ threads-timings: build
 #   make scale   the large runs (issue 13): shell n = 128, 256 (≥ 1e6 unknowns), the
 #                disk at n = 512 (≥ 1M, both pairs; gmsh ~4 min each, hence the
 #                tool timeout), p2b-psri n = 16…64 (~1 h)
+#   make scale-512  the shell at n = 512 (≈ 6M unknowns) in contact to 1e-8 against
+#                its floor, peak RSS per phase (~12 min, 17 GB)
 #   make study   work–precision: error against time, report in build/study/
 BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 
@@ -189,7 +191,7 @@ adapt: build
 	$(BIN) adapt pipelines/scenes/lshape-adapt.toml --out-dir $(BUILD)/adapt
 	$(BIN) adapt pipelines/scenes/lshape-adapt.toml --set 'element="p2-p1"' --out-dir $(BUILD)/adapt
 
-.PHONY: bench bench-1000 scale study
+.PHONY: bench bench-1000 scale scale-512 study
 
 bench: build
 	$(BENCH_BIN) bench run pipelines/bench/bench.toml --out-dir $(BUILD)/bench
@@ -200,6 +202,9 @@ bench-1000: build
 
 scale: build
 	ulimit -v 20000000; OBSTACLE_TOOL_TIMEOUT=3600 $(BENCH_BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale
+
+scale-512: build
+	ulimit -v 23500000; OBSTACLE_TOOL_TIMEOUT=3600 $(BENCH_BIN) bench run pipelines/bench/scale-512.toml --out-dir $(BUILD)/scale-512
 
 study: build
 	$(BENCH_BIN) bench study --out-dir $(BUILD)/study \
