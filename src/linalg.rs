@@ -3,8 +3,7 @@
 //! same pattern can be refactorised numerically only.
 
 use crate::error::{Error, Result};
-use faer::dyn_stack::StackReq;
-use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::solvers::Solve;
 use faer::perm::PermRef;

@@ -440,10 +440,14 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
         "toy",
     )
     .unwrap();
-    // The value position of (3, 3).
-    let a33 = (first.symbolic().col_ptr()[3]..first.symbolic().col_ptr()[4])
-        .find(|&k| first.symbolic().row_idx()[k] == 3)
-        .unwrap();
+    // The value position of the diagonal entry (i, i).
+    let diagonal = |i: usize| {
+        let s = first.symbolic();
+        (s.col_ptr()[i]..s.col_ptr()[i + 1])
+            .find(|&k| s.row_idx()[k] == i)
+            .unwrap()
+    };
+    let a33 = diagonal(3);
     reused.keep_eliminations(Some(&[a33]));
     let (_, x, _) = reused
         .factorize_and_solve_shared(&first, &b, Changed::Any, "toy")
@@ -464,9 +468,7 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
     assert_eq!(reused.symbolic_analyses(), 1);
     assert_eq!(reused.numeric_factorizations(), 4);
     // (1, 1) lies in the group {1, 2}.
-    let a11 = (first.symbolic().col_ptr()[1]..first.symbolic().col_ptr()[2])
-        .find(|&k| first.symbolic().row_idx()[k] == 1)
-        .unwrap();
+    let a11 = diagonal(1);
     reused.keep_eliminations(Some(&[a11]));
     let err = reused
         .factorize_and_solve_shared(&first, &b, Changed::Any, "toy")
