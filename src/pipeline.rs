@@ -228,6 +228,9 @@ impl RunSummary {
 const RUN_SECONDS: &str = "run_seconds";
 /// `/solver` attribute prefix of the peak RSS (MB) at each phase's end.
 const PEAK_RSS_PREFIX: &str = "peak_rss_mb_";
+/// `/solver` attributes: the run's seconds at the end of each phase
+/// (meshing, assembly, solve), so a run's time splits by phase.
+const PHASE_END_PREFIX: &str = "seconds_at_end_of_";
 
 /// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
 /// (writing `msh_path`).
@@ -377,10 +380,19 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         None => outputs.stage(&out.with_extension("msh"))?,
         Some(_) => PathBuf::new(), // the scene's own mesh file: nothing written
     };
-    let mut peak_rss_mb: Vec<(String, f64)> = Vec::new();
+    // Each phase's end: the run's seconds so far and its peak RSS.
+    let mut phase_ends: Vec<(String, AttrValue)> = Vec::new();
     let mut phase_end = |phase: &str| {
+        let seconds = start.elapsed().as_secs_f64();
+        phase_ends.push((
+            format!("{PHASE_END_PREFIX}{phase}"),
+            AttrValue::F64(seconds),
+        ));
         if let Some(kb) = guards::peak_rss_kb() {
-            peak_rss_mb.push((phase.into(), kb as f64 / 1024.0));
+            phase_ends.push((
+                format!("{PEAK_RSS_PREFIX}{phase}"),
+                AttrValue::F64(kb as f64 / 1024.0),
+            ));
         }
     };
     let mesh = scene_mesh(scene, &msh)?;
@@ -407,11 +419,7 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         RUN_SECONDS.into(),
         AttrValue::F64(start.elapsed().as_secs_f64()),
     ));
-    data.solver_attrs.extend(
-        peak_rss_mb
-            .iter()
-            .map(|(phase, mb)| (format!("{PEAK_RSS_PREFIX}{phase}"), AttrValue::F64(*mb))),
-    );
+    data.solver_attrs.extend(phase_ends);
     write_result(&staged_out, &mesh, &data)?;
     write_plots(
         scene,

@@ -1,4 +1,5 @@
-//! Assembly's sparse compression (`Triplets::into_sparse`), property-tested.
+//! Assembly's sparse compression (`Triplets::into_sparse`) and element-by-element
+//! assembly into compressed columns (`ElementMatrix`), property-tested.
 
 use proptest::prelude::*;
 
@@ -35,5 +36,63 @@ proptest! {
             }
         }
         prop_assert_eq!(seen, present);
+    }
+
+    /// `ElementMatrix` holds exactly the couplings of its elements (coupled
+    /// dofs with each other and with the multipliers, never two
+    /// multipliers; explicit zeros kept; eliminated dofs dropped) and sums
+    /// the elements' blocks to what `Triplets::into_sparse` gives for the
+    /// same entries.
+    #[test]
+    fn element_matrix_equals_the_triplet_sum_on_the_elements_pattern(
+        n in 1usize..30,
+        elements in proptest::collection::vec(
+            (proptest::collection::vec(0usize..1000, 1..6), proptest::collection::vec(0usize..1000, 0..3)),
+            1..40,
+        ),
+        eliminated in proptest::collection::vec(any::<bool>(), 30),
+    ) {
+        use obstacle_fem::assembly::{ElementMatrix, Triplets};
+        // Element e: distinct global dofs, the first `k` coupled; a dof's
+        // free index or None where eliminated.
+        let n_free = (0..n).filter(|&d| !eliminated[d]).count();
+        prop_assume!(n_free > 0);
+        let free = |d: usize| -> Option<usize> {
+            (!eliminated[d]).then(|| (0..d).filter(|&k| !eliminated[k]).count())
+        };
+        let lists: Vec<(Vec<usize>, Vec<usize>)> = elements
+            .iter()
+            .map(|(coupled, multipliers)| {
+                let mut all: Vec<usize> = coupled.iter().chain(multipliers).map(|d| d % n).collect();
+                all.sort_unstable();
+                all.dedup();
+                let k = coupled.len().min(all.len());
+                (all[..k].to_vec(), all[k..].to_vec())
+            })
+            .collect();
+        let value = |e: usize, a: usize, b: usize| ((e * 7 + a * 3 + b) % 5) as f64 - 2.0;
+        let mut m = ElementMatrix::new(n_free, lists.len(), |e, dofs| {
+            dofs.coupled.extend(lists[e].0.iter().filter_map(|&d| free(d)));
+            dofs.multipliers.extend(lists[e].1.iter().filter_map(|&d| free(d)));
+        });
+        let mut t = Triplets::new(n_free, n_free);
+        for (e, (coupled, multipliers)) in lists.iter().enumerate() {
+            let k = coupled.len();
+            let dofs: Vec<Option<usize>> = coupled.iter().chain(multipliers).map(|&d| free(d)).collect();
+            let couples = |a: usize, b: usize| a < k || b < k;
+            m.add(&dofs, |a, b| if couples(a, b) { value(e, a, b) } else { 0.0 });
+            for (a, i) in dofs.iter().enumerate() {
+                for (b, j) in dofs.iter().enumerate() {
+                    if let (Some(i), Some(j), true) = (i, j, couples(a, b)) {
+                        t.push(*i, *j, value(e, a, b));
+                    }
+                }
+            }
+        }
+        let (a, b) = (m.into_sparse(), t.into_sparse());
+        prop_assert_eq!(a.symbolic().col_ptr(), b.symbolic().col_ptr());
+        prop_assert_eq!(a.symbolic().row_idx(), b.symbolic().row_idx());
+        // Small integers: every order of summation is exact.
+        prop_assert_eq!(a.val(), b.val());
     }
 }

@@ -258,14 +258,15 @@ fn stiffness_times(
         thickness,
     };
     let zero = [0.0; 3].map(obstacle_fem::expression::Expression::constant);
-    let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, &zero);
-    let scale = a.max_abs();
+    let all_free = obstacle_fem::assembly::DofNumbering::all_free(layout.n_total());
+    let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, &zero, &all_free);
+    let scale = obstacle_fem::assembly::norm_inf(a.val());
     let mut x = vec![0.0; layout.n_total()];
     for (f, fl) in layout.fields.iter().enumerate() {
         let values = Space::new(mesh, fl.element).interpolate(|p| field(p)[f]);
         x[fl.offset..fl.offset + fl.len].copy_from_slice(&values);
     }
-    let ax = mat_vec(&a.into_sparse(), &x);
+    let ax = mat_vec(&a, &x);
     let mut worst = 0.0f64;
     for fl in &layout.fields {
         let boundary = Space::new(mesh, fl.element).boundary_dof_mask(None);
@@ -510,21 +511,27 @@ fn nested_start_carries_x_and_lambda() {
         |r: &ResultFile| -> Vec<bool> { dofs(r, "lambda").iter().map(|&l| l > 0.0).collect() };
     assert_eq!(contact(&a), contact(&b), "contact sets differ");
     assert!(contact(&a).iter().any(|&c| c));
-    // Peak RSS per phase: recorded, positive, non-decreasing.
-    let rss: Vec<f64> = ["meshing", "assembly", "solve"]
-        .iter()
-        .map(|phase| {
-            let name = format!("peak_rss_mb_{phase}");
-            match b.data.solver_attrs.iter().find(|(n, _)| *n == name) {
-                Some((_, AttrValue::F64(v))) => *v,
-                other => panic!("{name}: {other:?}"),
-            }
-        })
-        .collect();
-    assert!(
-        rss[0] > 0.0 && rss.windows(2).all(|w| w[0] <= w[1]),
-        "{rss:?}"
-    );
+    // Peak RSS and the run's seconds at each phase's end: recorded,
+    // positive, non-decreasing.
+    let at_ends = |prefix: &str| -> Vec<f64> {
+        let at_ends: Vec<f64> = ["meshing", "assembly", "solve"]
+            .iter()
+            .map(|phase| {
+                let name = format!("{prefix}{phase}");
+                match b.data.solver_attrs.iter().find(|(n, _)| *n == name) {
+                    Some((_, AttrValue::F64(v))) => *v,
+                    other => panic!("{name}: {other:?}"),
+                }
+            })
+            .collect();
+        assert!(
+            at_ends[0] > 0.0 && at_ends.windows(2).all(|w| w[0] <= w[1]),
+            "{prefix}: {at_ends:?}"
+        );
+        at_ends
+    };
+    at_ends("seconds_at_end_of_");
+    let rss = at_ends("peak_rss_mb_");
     assert_eq!(
         nested
             .peak_rss_mb

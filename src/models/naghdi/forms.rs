@@ -28,13 +28,14 @@
 //! [`scale_tangency_multiplier`] rebalances the ψ block for large ρ.
 
 use super::geometry::{obstacle_function, Chart, Material, SurfacePoint};
-use crate::assembly::{eliminate, quad_points, DofNumbering, Triplets};
+use crate::assembly::{eliminate, quad_points, DofNumbering, ElementMatrix, Triplets};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
 use crate::quadrature::{SegmentRule, TriangleRule};
 use crate::scene::Expression;
 use crate::solvers::{Constraint, ContactProblem};
 use crate::space::{Element, Space, TriangleGeometry};
+use faer::sparse::SparseColMat;
 use nalgebra::{Matrix2, Vector3};
 
 /// Number of components of U = (u, r) in the thesis' layout.
@@ -583,9 +584,11 @@ fn element_globals(mesh: &Mesh, layout: &ShellLayout, t: usize) -> (Vec<usize>, 
     (u, psi)
 }
 
-/// The full (unclamped) matrix over all dofs of the layout — the saddle
-/// matrix [[K_ρ, Bᵀ], [B, 0]] with ψ, K alone without — and the full load
-/// vector (zero in the ψ block).
+/// The matrix over the free dofs of `numbering` — the saddle matrix
+/// [[K_ρ, Bᵀ], [B, 0]] with ψ, K alone without; homogeneous conditions, so
+/// a clamped dof's rows and columns are dropped — and the full load vector
+/// (zero in the ψ block). Assembled straight into compressed columns
+/// ([`ElementMatrix`]): U dofs couple within a triangle, ψ's with U's only.
 pub fn assemble_shell_layout(
     mesh: &Mesh,
     layout: &ShellLayout,
@@ -593,44 +596,50 @@ pub fn assemble_shell_layout(
     material: &Material,
     rho: f64,
     load: &[Expression; 3],
-) -> (Triplets, Vec<f64>) {
-    let n = layout.n_total();
-    let mut a = Triplets::new(n, n);
-    let mut f = vec![0.0; n];
+    numbering: &DofNumbering,
+) -> (SparseColMat<usize, f64>, Vec<f64>) {
+    let free = |globals: &[usize]| -> Vec<Option<usize>> {
+        globals.iter().map(|&d| numbering.free_index[d]).collect()
+    };
+    let mut a = ElementMatrix::new(numbering.n_free(), mesh.n_triangles(), |t, dofs| {
+        let (u, psi) = element_globals(mesh, layout, t);
+        dofs.coupled.extend(free(&u).into_iter().flatten());
+        dofs.multipliers.extend(free(&psi).into_iter().flatten());
+    });
+    let mut f = vec![0.0; layout.n_total()];
     for t in 0..mesh.n_triangles() {
         let passes = integration_passes(layout, psri_weight(mesh, t, material.thickness));
         let el = element_matrices(mesh, layout, &passes, t, chart, material, rho, load);
         let (u, psi) = element_globals(mesh, layout, t);
-        if t == 0 {
-            a.reserve(mesh.n_triangles() * (u.len() * u.len() + 2 * psi.len() * u.len()));
-        }
         for i in 0..el.n_u {
             f[u[i]] += el.load[i];
-            for j in 0..el.n_u {
-                a.push(u[i], u[j], el.stiffness[i * el.n_u + j]);
-            }
         }
-        for (k, &row) in psi.iter().enumerate() {
-            for j in 0..el.n_u {
-                let v = el.tangency[k][j];
-                a.push(row, u[j], v);
-                a.push(u[j], row, v);
-            }
-        }
+        let n_u = el.n_u;
+        let mut dofs = free(&u);
+        dofs.extend(free(&psi));
+        a.add(&dofs, |i, j| match (i < n_u, j < n_u) {
+            (true, true) => el.stiffness[i * n_u + j],
+            (false, true) => el.tangency[i - n_u][j],
+            (true, false) => el.tangency[j - n_u][i],
+            (false, false) => 0.0,
+        });
     }
-    (a, f)
+    (a.into_sparse(), f)
 }
 
-/// The thesis' full saddle matrix and load (see [`assemble_shell_layout`]).
+/// The thesis' saddle matrix over every dof (nothing clamped) and its load
+/// (see [`assemble_shell_layout`]).
 pub fn assemble_shell_full(
     mesh: &Mesh,
     chart: &Chart,
     material: &Material,
     rho: f64,
     load: [f64; 3],
-) -> (Triplets, Vec<f64>) {
+) -> (SparseColMat<usize, f64>, Vec<f64>) {
     let load = load.map(Expression::constant);
-    assemble_shell_layout(mesh, &ShellLayout::new(mesh), chart, material, rho, &load)
+    let layout = ShellLayout::new(mesh);
+    let numbering = DofNumbering::all_free(layout.n_total());
+    assemble_shell_layout(mesh, &layout, chart, material, rho, &load, &numbering)
 }
 
 /// The shell without contact: the saddle matrix [[K_ρ, Bᵀ], [B, 0]] over the
@@ -645,25 +654,25 @@ pub fn assemble_shell(
     clamped_tags: Option<&[i32]>,
 ) -> (ContactProblem, DofNumbering) {
     let numbering = clamped_numbering(mesh, clamped_tags);
-    let (a_full, f_full) = assemble_shell_full(mesh, chart, material, rho, load);
-    let problem = restrict_shell(&ShellLayout::new(mesh), a_full, &f_full, &numbering);
+    let layout = ShellLayout::new(mesh);
+    let load = load.map(Expression::constant);
+    let (a, f_full) = assemble_shell_layout(mesh, &layout, chart, material, rho, &load, &numbering);
+    let problem = restrict_shell(&layout, a, &f_full, &numbering);
     (problem, numbering)
 }
 
-/// The shell problem over the free dofs of `numbering` (homogeneous
-/// conditions: fixed dofs are zero, so no lifting): A restricted, F
+/// The shell problem over the free dofs of `numbering` from its matrix
+/// `a` over them ([`assemble_shell_layout`]) and the full load: F
 /// restricted, n_primal = number of free U dofs (they come first in block
 /// order). With ψ the matrix is a symmetric saddle-point matrix; without
 /// (the tangent-rotation element, or the plate reduction that eliminated it)
 /// K is symmetric positive definite.
 pub fn restrict_shell(
     layout: &ShellLayout,
-    a_full: Triplets,
+    a: SparseColMat<usize, f64>,
     f_full: &[f64],
     numbering: &DofNumbering,
 ) -> ContactProblem {
-    let zeros = vec![0.0; layout.n_total()];
-    let (a, _) = eliminate(a_full, numbering, numbering, &zeros);
     let psi_start = layout
         .psi()
         .map_or(layout.n_total(), |f| layout.fields[f].offset);
@@ -686,7 +695,7 @@ pub fn restrict_shell(
         .map(|f| f.offset + f.len - layout.n_triangles)
         .collect();
     ContactProblem {
-        matrix: a.into_sparse(),
+        matrix: a,
         kind,
         rhs: numbering.restrict(f_full),
         n_primal,
@@ -1149,8 +1158,8 @@ mod tests {
         ];
         for (chart, x) in cases {
             let (a, _) = assemble_shell_full(&mesh, &chart, &material(), 1e3, [0.0; 3]);
-            let scale = a.max_abs();
-            let ax = crate::assembly::mat_vec(&a.into_sparse(), &x);
+            let scale = crate::assembly::norm_inf(a.val());
+            let ax = crate::assembly::mat_vec(&a, &x);
             let worst = ax.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             assert!(worst < 1e-12 * scale, "{chart:?}: |K U_rigid| = {worst:e}");
         }

@@ -482,13 +482,14 @@ impl<'m> NaghdiSystem<'m> {
 
 impl ModelSystem for NaghdiSystem<'_> {
     fn assemble(&self) -> Result<ContactProblem> {
-        let (a_full, mut f_full) = assemble_shell_layout(
+        let (a, mut f_full) = assemble_shell_layout(
             self.mesh,
             &self.layout,
             &self.chart,
             &self.material,
             self.rho,
             &self.body_force,
+            &self.numbering,
         );
         for &(tag, traction, moment) in &self.edge_loads {
             add_edge_load(
@@ -501,7 +502,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                 &mut f_full,
             );
         }
-        let mut problem = restrict_shell(&self.layout, a_full, &f_full, &self.numbering);
+        let mut problem = restrict_shell(&self.layout, a, &f_full, &self.numbering);
         if problem.n_primal < problem.n() {
             // ψ present: balance its rows with K's (needed for large ρ).
             let sigma = balanced_tangency_scale(&problem);
