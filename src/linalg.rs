@@ -19,10 +19,12 @@ use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
 mod condensed;
+mod tree_ldlt;
+use tree_ldlt::TreeSchedule;
 
 thread_local! {
-    /// Threads of the LDLᵀ factorisations and triangular solves made on this
-    /// thread ([`set_threads`]); 1: sequential.
+    /// Threads of the supernodal LDLᵀ factorisations made on this thread
+    /// ([`set_threads`]); 1: faer's sequential one.
     static THREADS: std::cell::Cell<usize> = const { std::cell::Cell::new(1) };
 }
 
@@ -53,24 +55,19 @@ pub fn keep_freed_memory() -> bool {
     }
 }
 
-/// Threads (faer's `Par::rayon`) for the LDLᵀ factorisations and solves made
-/// on the calling thread from now on (`solver.threads`; 1 or 0: sequential).
-/// Per thread, so concurrent runs (tests, `study --jobs`) keep their own.
-/// Cholesky and LU stay sequential.
+/// Threads for the supernodal LDLᵀ factorisations made on the calling
+/// thread from now on (`solver.threads`; 1 or 0: faer's sequential
+/// factorisation; 2 or more: two threads on the elimination tree,
+/// `tree_ldlt`). Per thread, so concurrent runs (tests, `study --jobs`)
+/// keep their own. Solves, Cholesky and LU are sequential: faer's own
+/// threads lost on this 2-core machine (docs/work-precision.md, "Threads").
 pub fn set_threads(threads: usize) {
     THREADS.with(|t| t.set(threads.max(1)));
 }
 
-/// The parallelism of [`set_threads`]. faer's global setting, which its
-/// Cholesky and LU read, is kept sequential (with faer's `rayon` feature it
-/// would default to every core).
+/// faer's parallelism: sequential (see [`set_threads`]).
 fn parallelism() -> Par {
-    static SEQUENTIAL_GLOBAL: std::sync::Once = std::sync::Once::new();
-    SEQUENTIAL_GLOBAL.call_once(|| faer::set_global_parallelism(Par::Seq));
-    match THREADS.with(|t| t.get()) {
-        1 => Par::Seq,
-        n => Par::rayon(n),
-    }
+    Par::Seq
 }
 
 pub use condensed::InteriorGroups;
@@ -661,6 +658,8 @@ enum SymbolicAnalysis {
     Lu(SymbolicLu<usize>),
     Ldlt {
         symbolic: Arc<SymbolicCholesky<usize>>,
+        /// The two threads' split of a supernodal analysis ([`set_threads`]).
+        schedule: Option<Arc<TreeSchedule>>,
         n_primal: usize,
         /// The order it was analysed for ([`Solves`]).
         order: Solves,
@@ -1080,11 +1079,7 @@ impl DirectFactorizer {
     ) -> Result<Self> {
         let symbolic = match kind {
             MatrixKind::General => lu_analysis(a, what)?,
-            MatrixKind::SymmetricSaddle { n_primal } => SymbolicAnalysis::Ldlt {
-                symbolic: Arc::new(analyze_symmetric(a, n_primal, solves, what)?),
-                n_primal,
-                order: solves,
-            },
+            MatrixKind::SymmetricSaddle { n_primal } => ldlt_analysis(a, n_primal, solves, what)?,
             MatrixKind::SymmetricPositiveDefinite => SymbolicAnalysis::Llt(
                 SymbolicLlt::try_new(a.symbolic(), Side::Lower)
                     .map_err(|e| Error::numerical(what, "Cholesky (symbolic)", format!("{e:?}")))?,
@@ -1126,7 +1121,7 @@ impl DirectFactorizer {
                 })?,
             )),
             SymbolicAnalysis::Ldlt {
-                symbolic, n_primal, ..
+                symbolic, schedule, n_primal, ..
             } if *n_primal == a.nrows() => {
                 // Every pivot positive (the SPD fallback): no pivot is
                 // regularised, so the refined solve is backward stable; its
@@ -1134,7 +1129,7 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(symbolic.clone(), matrix.to_arc(), storage, *n_primal, &self.spare_factors, what)
+                let solved = RegularizedLdlt::new(symbolic.clone(), schedule.as_deref(), matrix.to_arc(), storage, *n_primal, &self.spare_factors, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
@@ -1157,6 +1152,7 @@ impl DirectFactorizer {
             }
             SymbolicAnalysis::Ldlt {
                 symbolic,
+                schedule,
                 n_primal,
                 order,
             } => {
@@ -1164,6 +1160,7 @@ impl DirectFactorizer {
                 let ldlt =
                     RegularizedLdlt::new(
                         symbolic.clone(),
+                        schedule.as_deref(),
                         matrix.to_arc(),
                         storage,
                         n_primal,
@@ -1196,11 +1193,7 @@ impl DirectFactorizer {
                 // n = 256): the order that regularises no pivot next, then LU
                 // (the signs are not the matrix's inertia).
                 let next = match order {
-                    Solves::Few => SymbolicAnalysis::Ldlt {
-                        symbolic: Arc::new(analyze_symmetric(a, n_primal, Solves::Many, what)?),
-                        n_primal,
-                        order: Solves::Many,
-                    },
+                    Solves::Few => ldlt_analysis(a, n_primal, Solves::Many, what)?,
                     Solves::Many => self.lu_fallback(a, &why, what)?,
                 };
                 return self.retry_with(next, why, matrix.clone(), b, what);
@@ -1229,12 +1222,7 @@ impl DirectFactorizer {
                 // round-off equilibrated and refined.
                 let n = a.nrows();
                 let why = format!("Cholesky: {e}");
-                let symbolic = analyze_symmetric(a, n, Solves::Few, what).map_err(|_| e)?;
-                let ldlt = SymbolicAnalysis::Ldlt {
-                    symbolic: Arc::new(symbolic),
-                    n_primal: n,
-                    order: Solves::Few,
-                };
+                let ldlt = ldlt_analysis(a, n, Solves::Few, what).map_err(|_| e)?;
                 self.retry_with(ldlt, why, matrix.clone(), b, what)
             }
             Err(e) => Err(self.naming_fallbacks(e)),
@@ -1520,6 +1508,27 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
     d
 }
 
+/// The LDLᵀ analysis in the ordering `solves` asks for, with its two
+/// threads' schedule when supernodal.
+fn ldlt_analysis(
+    a: &SparseColMat<usize, f64>,
+    n_primal: usize,
+    solves: Solves,
+    what: &str,
+) -> Result<SymbolicAnalysis> {
+    let symbolic = analyze_symmetric(a, n_primal, solves, what)?;
+    let schedule = match symbolic.raw() {
+        SymbolicCholeskyRaw::Supernodal(raw) => TreeSchedule::new(raw).map(Arc::new),
+        SymbolicCholeskyRaw::Simplicial(_) => None,
+    };
+    Ok(SymbolicAnalysis::Ldlt {
+        symbolic: Arc::new(symbolic),
+        schedule,
+        n_primal,
+        order: solves,
+    })
+}
+
 /// The symbolic LDLᵀ analysis in the ordering `solves` asks for.
 fn analyze_symmetric(
     a: &SparseColMat<usize, f64>,
@@ -1713,8 +1722,11 @@ impl Drop for RegularizedLdlt {
 }
 
 impl RegularizedLdlt {
+    /// `schedule`: the two threads' split of a supernodal `symbolic`, used
+    /// when this thread's factorisations have two threads ([`set_threads`]).
     fn new(
         symbolic: Arc<SymbolicCholesky<usize>>,
+        schedule: Option<&TreeSchedule>,
         matrix: Arc<SparseColMat<usize, f64>>,
         storage: Storage,
         n_primal: usize,
@@ -1736,6 +1748,7 @@ impl RegularizedLdlt {
             dynamic_regularization_epsilon: f64::EPSILON * scaled_norm,
         };
         let stack = MemStack::new(&mut buffer);
+        let tree = schedule.filter(|_| THREADS.with(|t| t.get()) >= 2);
         let factorized = match symbolic.raw() {
             SymbolicCholeskyRaw::Simplicial(raw) => simplicial::factorize_simplicial_numeric_ldlt(
                 &mut values,
@@ -1743,7 +1756,16 @@ impl RegularizedLdlt {
                 regularization,
                 raw,
                 stack,
-            ),
+            )
+            .map(|_| ()),
+            SymbolicCholeskyRaw::Supernodal(raw) if tree.is_some() => tree_ldlt::factorize(
+                &mut values,
+                scaled.as_ref(),
+                &regularization,
+                raw,
+                tree.expect("matched"),
+            )
+            .map(|_| ()),
             SymbolicCholeskyRaw::Supernodal(raw) => supernodal::factorize_supernodal_numeric_ldlt(
                 &mut values,
                 scaled.as_ref(),
@@ -1752,7 +1774,8 @@ impl RegularizedLdlt {
                 par,
                 stack,
                 Default::default(),
-            ),
+            )
+            .map(|_| ()),
         };
         factorized.map_err(|e| Error::numerical(what, "LDLᵀ", format!("zero pivot ({e:?})")))?;
         drop(scaled);

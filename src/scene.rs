@@ -462,8 +462,10 @@ pub struct SolverSpec {
     /// matrix (the old floor, for benchmarks). Same results to round-off.
     #[serde(default = "default_condense")]
     pub condense: bool,
-    /// Threads of the LDLᵀ factorisations and solves (faer's rayon; 1:
-    /// sequential). Same results to round-off (docs/work-precision.md, "Threads").
+    /// Threads of the supernodal LDLᵀ factorisations: 1 faer's sequential
+    /// one; 2 (the default) or more two threads on the elimination tree
+    /// (src/linalg/tree_ldlt.rs). Solves stay sequential. Same results to
+    /// round-off (docs/work-precision.md, "Two threads on the elimination tree").
     #[serde(default = "default_threads")]
     pub threads: i64,
 }
@@ -513,7 +515,7 @@ fn default_condense() -> bool {
     true
 }
 fn default_threads() -> i64 {
-    1
+    2
 }
 fn default_thesis_tol() -> f64 {
     1e-5

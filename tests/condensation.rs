@@ -175,8 +175,8 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
     }
 }
 
-/// `solver.threads = 2` (faer's rayon in the LDLᵀ factorisation and
-/// solves) gives the sequential run's iterates: 40 Uzawa iterations on the
+/// `solver.threads = 2` (two threads on the elimination tree of each
+/// supernodal LDLᵀ) gives the sequential run's iterates: 40 Uzawa iterations on the
 /// shell p1b-p0 at n = 16, condensed and whole, x and λ to 1e-12, the
 /// Lanczos α to 1e-10, the same KKT history to 1e-8 relative.
 #[test]

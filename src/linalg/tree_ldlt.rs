@@ -1,0 +1,665 @@
+//! The numeric supernodal LDLᵀ with its elimination tree split between
+//! two threads (issue 13, item 3).
+//!
+//! faer's `factorize_supernodal_numeric_ldlt` is left-looking: it visits
+//! the supernodes in order, and its `Par` reaches only the dense kernels
+//! inside each one, so on this 2-core machine two threads lost (most
+//! supernodes are small). Disjoint subtrees of the supernodal elimination
+//! tree, though, never read each other's columns: here two threads factor
+//! two sets of subtrees of about equal work ([`TreeSchedule`]), then the
+//! supernodes above them (the top of the tree) are factored in order, the
+//! updates each receives from its descendants split between the two. Each
+//! supernode is computed exactly as faer does it (same layout, same
+//! updates from the same descendants, same dense LDLᵀ with the signed
+//! regularisation), so faer's solves read the result; the descendants'
+//! updates go through a gathered product instead of faer's crate-private
+//! scatter kernel, so values agree with faer's to round-off.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::ldlt::factor::{
+    cholesky_in_place, cholesky_in_place_scratch, LdltError, LdltRegularization,
+};
+use faer::linalg::matmul::matmul;
+use faer::linalg::triangular_solve::solve_unit_lower_triangular_in_place;
+use faer::reborrow::{Reborrow, ReborrowMut};
+use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
+use faer::sparse::SparseColMatRef;
+use faer::{Accum, MatMut, MatRef, Par};
+
+/// Which supernodes each thread factors, and from which descendants every
+/// supernode takes its updates.
+#[derive(Debug)]
+pub struct TreeSchedule {
+    /// Per supernode: the thread (0, 1) whose subtrees hold it, or [`TOP`].
+    owner: Vec<u8>,
+    /// The supernodes above the subtrees, ascending.
+    top: Vec<usize>,
+    /// Descendants updating supernode s: `updates[update_ptr[s]..update_ptr[s + 1]]`,
+    /// ascending (the order of faer's `row_major`).
+    update_ptr: Vec<usize>,
+    updates: Vec<usize>,
+}
+
+/// Subtrees are split off the top of the tree while that lowers the
+/// estimated time max(bin) + top (in flops: Σ over columns of the column
+/// count squared, the updates a column sends counted with it).
+const MAX_SPLITS: usize = 64;
+/// The owner of a supernode above the subtrees.
+const TOP: u8 = 2;
+
+impl TreeSchedule {
+    /// `None` when a supernode's parent does not come after it (then
+    /// faer's own factorisation serves).
+    pub fn new(symbolic: &SymbolicSupernodalCholesky<usize>) -> Option<Self> {
+        let n_super = symbolic.n_supernodes();
+        let (begin, end) = (symbolic.supernode_begin(), symbolic.supernode_end());
+        let (pattern_ptr, rows) = (symbolic.col_ptr_for_row_idx(), symbolic.row_idx());
+        let mut supernode_of = vec![0usize; symbolic.nrows()];
+        for s in 0..n_super {
+            supernode_of[begin[s]..end[s]].fill(s);
+        }
+        // Parent (the supernode of the first off-diagonal row), own work.
+        let mut parent = vec![usize::MAX; n_super];
+        let mut work = vec![0.0f64; n_super];
+        for s in 0..n_super {
+            let (w, below) = (end[s] - begin[s], pattern_ptr[s + 1] - pattern_ptr[s]);
+            work[s] = (0..w).map(|k| ((w + below - k) as f64).powi(2)).sum();
+            if below > 0 {
+                parent[s] = supernode_of[rows[pattern_ptr[s]]];
+                if parent[s] <= s {
+                    return None;
+                }
+            }
+        }
+        let own = work.clone();
+        let mut children: Vec<Vec<usize>> = vec![Vec::new(); n_super];
+        for s in 0..n_super {
+            if parent[s] != usize::MAX {
+                work[parent[s]] += work[s];
+                children[parent[s]].push(s);
+            }
+        }
+        // Split off the top: always the heaviest subtree of the frontier.
+        let mut frontier: Vec<usize> = (0..n_super).filter(|&s| parent[s] == usize::MAX).collect();
+        let mut top: Vec<usize> = Vec::new();
+        let mut best: Option<(f64, Vec<usize>, Vec<usize>)> = None;
+        for _ in 0..MAX_SPLITS {
+            frontier.sort_by(|x, y| work[*y].total_cmp(&work[*x]));
+            let top_work: f64 = top.iter().map(|&s| own[s]).sum();
+            let time = top_work + balanced(&frontier, &work).0;
+            if best.as_ref().is_none_or(|(t, ..)| time < *t) {
+                best = Some((time, frontier.clone(), top.clone()));
+            }
+            let heaviest = frontier[0];
+            if children[heaviest].is_empty() {
+                break;
+            }
+            frontier.remove(0);
+            top.push(heaviest);
+            frontier.extend(children[heaviest].iter().copied());
+        }
+        let (_, frontier, mut top) = best?;
+        let assignment = balanced(&frontier, &work).1;
+        let mut owner = vec![TOP; n_super];
+        for (&root, &bin) in frontier.iter().zip(&assignment) {
+            let mut stack = vec![root];
+            while let Some(s) = stack.pop() {
+                owner[s] = bin as u8;
+                stack.extend(children[s].iter().copied());
+            }
+        }
+        top.sort_unstable();
+        // The descendants updating each supernode (faer's row_major).
+        let mut counts = vec![0usize; n_super + 1];
+        let touched = |mut visit: Box<dyn FnMut(usize, usize) + '_>| {
+            for d in 0..n_super {
+                let mut last = usize::MAX;
+                for &r in &rows[pattern_ptr[d]..pattern_ptr[d + 1]] {
+                    let s = supernode_of[r];
+                    if s != last {
+                        visit(s, d);
+                        last = s;
+                    }
+                }
+            }
+        };
+        touched(Box::new(|s, _| counts[s + 1] += 1));
+        for s in 0..n_super {
+            counts[s + 1] += counts[s];
+        }
+        let mut next = counts.clone();
+        let mut updates = vec![0usize; counts[n_super]];
+        touched(Box::new(|s, d| {
+            updates[next[s]] = d;
+            next[s] += 1;
+        }));
+        Some(TreeSchedule {
+            owner,
+            top,
+            update_ptr: counts,
+            updates,
+        })
+    }
+}
+
+impl TreeSchedule {
+    fn updates_of(&self, s: usize) -> &[usize] {
+        &self.updates[self.update_ptr[s]..self.update_ptr[s + 1]]
+    }
+}
+
+/// The subtrees (heaviest first) in two bins, greedily: (the heavier
+/// bin's work, each subtree's bin).
+fn balanced(frontier: &[usize], work: &[f64]) -> (f64, Vec<usize>) {
+    let mut bins = [0.0f64; 2];
+    let assignment = frontier
+        .iter()
+        .map(|&s| {
+            let b = if bins[0] <= bins[1] { 0 } else { 1 };
+            bins[b] += work[s];
+            b
+        })
+        .collect();
+    (bins[0].max(bins[1]), assignment)
+}
+
+/// What every supernode's factorisation reads.
+struct Inputs<'a> {
+    symbolic: &'a SymbolicSupernodalCholesky<usize>,
+    schedule: &'a TreeSchedule,
+    a_lower: SparseColMatRef<'a, usize, f64>,
+    regularization: &'a LdltRegularization<'a, f64>,
+}
+
+/// One thread's scratch: the global-to-local row map, the gathered
+/// product and the dense LDLᵀ's stack.
+struct Workspace {
+    global_to_local: Vec<usize>,
+    scaled: Vec<f64>,
+    product: Vec<f64>,
+    /// A descendant's rows (from the supernode's first column on) as local rows.
+    local_rows: Vec<usize>,
+    stack: MemBuffer,
+}
+
+/// `v` at least `len` long (new entries zero; old ones kept).
+fn grow(v: &mut Vec<f64>, len: usize) {
+    if v.len() < len {
+        v.resize(len, 0.0);
+    }
+}
+
+impl Workspace {
+    fn new(symbolic: &SymbolicSupernodalCholesky<usize>) -> Self {
+        let (begin, end) = (symbolic.supernode_begin(), symbolic.supernode_end());
+        let widest = (0..symbolic.n_supernodes())
+            .map(|s| end[s] - begin[s])
+            .max()
+            .unwrap_or(0);
+        Workspace {
+            global_to_local: vec![usize::MAX; symbolic.nrows()],
+            scaled: Vec::new(),
+            product: Vec::new(),
+            local_rows: Vec::new(),
+            stack: MemBuffer::new(cholesky_in_place_scratch::<f64>(
+                widest,
+                Par::Seq,
+                Default::default(),
+            )),
+        }
+    }
+}
+
+/// The numeric LDLᵀ of `a_lower` (in the symbolic analysis' order, lower
+/// triangle) into `values` (faer's supernodal layout): two threads on the
+/// subtrees of `schedule`, then the top supernodes in order, each with its
+/// descendants' updates split between the two. Returns the number of
+/// regularised pivots.
+pub fn factorize(
+    values: &mut [f64],
+    a_lower: SparseColMatRef<'_, usize, f64>,
+    regularization: &LdltRegularization<'_, f64>,
+    symbolic: &SymbolicSupernodalCholesky<usize>,
+    schedule: &TreeSchedule,
+) -> Result<usize, LdltError> {
+    assert_eq!(values.len(), symbolic.len_val());
+    let inputs = Inputs {
+        symbolic,
+        schedule,
+        a_lower,
+        regularization,
+    };
+    let value_ptr = symbolic.col_ptr_for_val();
+    // Each supernode's block of `values`, handed to the thread that owns it.
+    let n_super = symbolic.n_supernodes();
+    let mut blocks: [Vec<Option<&mut [f64]>>; 2] = [
+        std::iter::repeat_with(|| None).take(n_super).collect(),
+        std::iter::repeat_with(|| None).take(n_super).collect(),
+    ];
+    let mut rest: &mut [f64] = values;
+    for s in 0..n_super {
+        let (block, tail) = std::mem::take(&mut rest).split_at_mut(value_ptr[s + 1] - value_ptr[s]);
+        if let Some(mine) = blocks.get_mut(schedule.owner[s] as usize) {
+            mine[s] = Some(block);
+        }
+        rest = tail;
+    }
+    let [first, second] = blocks;
+    let run_bin = |mut mine: Vec<Option<&mut [f64]>>| -> Result<usize, LdltError> {
+        let mut ws = Workspace::new(symbolic);
+        let mut count = 0;
+        for s in 0..n_super {
+            let (done, from_s) = mine.split_at_mut(s);
+            let Some(ls) = from_s[0].as_deref_mut() else {
+                continue;
+            };
+            ls.fill(0.0);
+            let block = |d: usize| -> &[f64] {
+                done[d]
+                    .as_deref()
+                    .expect("a descendant in the same subtree")
+            };
+            count += factor_supernode(&inputs, s, ls, &block, &mut ws)?;
+        }
+        Ok(count)
+    };
+    let (a, b) = std::thread::scope(|scope| {
+        let other = scope.spawn(|| run_bin(second));
+        let mine = run_bin(first);
+        (
+            mine,
+            other
+                .join()
+                .expect("the second factorisation thread panicked"),
+        )
+    });
+    let mut count = a? + b?;
+    let mut workspaces = [Workspace::new(symbolic), Workspace::new(symbolic)];
+    let mut scratch = Vec::new();
+    for &s in &schedule.top {
+        let (done, from_s) = values.split_at_mut(value_ptr[s]);
+        let ls = &mut from_s[..value_ptr[s + 1] - value_ptr[s]];
+        ls.fill(0.0);
+        let done: &[f64] = done;
+        let block = |d: usize| -> &[f64] { &done[value_ptr[d]..value_ptr[d + 1]] };
+        count += factor_top_supernode(&inputs, s, ls, &block, &mut workspaces, &mut scratch)?;
+    }
+    Ok(count)
+}
+
+/// Supernode s, faer's left-looking step: A's columns, the updates of
+/// its descendants, the dense LDLᵀ of its diagonal block, the solve for
+/// the rows below, into `ls_values` (s's block of the factor); `block(d)`
+/// is descendant d's (already factored).
+fn factor_supernode<'b>(
+    inputs: &Inputs<'_>,
+    s: usize,
+    ls_values: &mut [f64],
+    block: &dyn Fn(usize) -> &'b [f64],
+    ws: &mut Workspace,
+) -> Result<usize, LdltError> {
+    let shape = Shape::of(inputs.symbolic, s);
+    shape.map_rows(&mut ws.global_to_local);
+    let mut ls = shape.matrix(ls_values);
+    shape.add_columns_of_a(inputs.a_lower, &ws.global_to_local, ls.rb_mut());
+    let updates = inputs.schedule.updates_of(s);
+    shape.add_updates(updates, block, ws, ls.rb_mut());
+    shape.unmap_rows(&mut ws.global_to_local);
+    shape.finish(inputs.regularization, ls, &mut ws.stack)
+}
+
+/// A top supernode: as [`factor_supernode`], its descendants' updates
+/// split between two threads (the second sums its half in `scratch`).
+fn factor_top_supernode<'b>(
+    inputs: &Inputs<'_>,
+    s: usize,
+    ls_values: &mut [f64],
+    block: &(dyn Fn(usize) -> &'b [f64] + Sync),
+    workspaces: &mut [Workspace; 2],
+    scratch: &mut Vec<f64>,
+) -> Result<usize, LdltError> {
+    let shape = Shape::of(inputs.symbolic, s);
+    let [ws, other_ws] = workspaces;
+    shape.map_rows(&mut ws.global_to_local);
+    shape.map_rows(&mut other_ws.global_to_local);
+    let mut ls = shape.matrix(ls_values);
+    shape.add_columns_of_a(inputs.a_lower, &ws.global_to_local, ls.rb_mut());
+    let updates = inputs.schedule.updates_of(s);
+    // Halves of about equal work: alternate, heaviest (latest) first.
+    let (mine, theirs): (Vec<usize>, Vec<usize>) = {
+        let mut all: Vec<usize> = updates.to_vec();
+        all.reverse();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for (k, d) in all.into_iter().enumerate() {
+            if k % 2 == 0 {
+                a.push(d)
+            } else {
+                b.push(d)
+            }
+        }
+        (a, b)
+    };
+    scratch.clear();
+    scratch.resize(shape.nrows * shape.ncols, 0.0);
+    std::thread::scope(|scope| {
+        let (scratch, other_ws) = (&mut *scratch, &mut *other_ws);
+        let helper = scope.spawn(move || {
+            let partial = shape.matrix(scratch);
+            shape.add_updates(&theirs, block, other_ws, partial);
+        });
+        shape.add_updates(&mine, block, ws, ls.rb_mut());
+        helper
+            .join()
+            .expect("the second factorisation thread panicked");
+    });
+    for (l, p) in ls.rb_mut().col_iter_mut().zip(scratch.chunks(shape.nrows)) {
+        for (l, p) in l.iter_mut().zip(p) {
+            *l += p;
+        }
+    }
+    shape.unmap_rows(&mut ws.global_to_local);
+    shape.unmap_rows(&mut other_ws.global_to_local);
+    shape.finish(inputs.regularization, ls, &mut ws.stack)
+}
+
+/// Supernode s's columns and rows.
+#[derive(Clone, Copy)]
+struct Shape<'a> {
+    start: usize,
+    end: usize,
+    ncols: usize,
+    nrows: usize,
+    pattern: &'a [usize],
+    symbolic: &'a SymbolicSupernodalCholesky<usize>,
+}
+
+impl<'a> Shape<'a> {
+    fn of(symbolic: &'a SymbolicSupernodalCholesky<usize>, s: usize) -> Self {
+        let (begin, end) = (symbolic.supernode_begin(), symbolic.supernode_end());
+        let (pattern_ptr, rows) = (symbolic.col_ptr_for_row_idx(), symbolic.row_idx());
+        let pattern = &rows[pattern_ptr[s]..pattern_ptr[s + 1]];
+        let ncols = end[s] - begin[s];
+        Shape {
+            start: begin[s],
+            end: end[s],
+            ncols,
+            nrows: pattern.len() + ncols,
+            pattern,
+            symbolic,
+        }
+    }
+
+    fn matrix<'m>(&self, values: &'m mut [f64]) -> MatMut<'m, f64> {
+        MatMut::from_column_major_slice_mut(values, self.nrows, self.ncols)
+    }
+
+    /// Rows below the diagonal block → their local row.
+    fn map_rows(&self, global_to_local: &mut [usize]) {
+        for (i, &row) in self.pattern.iter().enumerate() {
+            global_to_local[row] = i + self.ncols;
+        }
+    }
+
+    fn unmap_rows(&self, global_to_local: &mut [usize]) {
+        for &row in self.pattern {
+            global_to_local[row] = usize::MAX;
+        }
+    }
+
+    fn local_row(&self, row: usize, global_to_local: &[usize]) -> usize {
+        if row < self.end {
+            row - self.start
+        } else {
+            global_to_local[row]
+        }
+    }
+
+    /// A's lower-triangle entries of the supernode's columns.
+    fn add_columns_of_a(
+        &self,
+        a: SparseColMatRef<'_, usize, f64>,
+        global_to_local: &[usize],
+        mut ls: MatMut<'_, f64>,
+    ) {
+        for j in self.start..self.end {
+            for (i, v) in a.row_idx_of_col(j).zip(a.val_of_col(j)) {
+                if i >= j {
+                    ls[(self.local_row(i, global_to_local), j - self.start)] += v;
+                }
+            }
+        }
+    }
+
+    /// Ls −= L_d D_d L_dᵀ (its lower part) for each descendant d.
+    fn add_updates<'b>(
+        &self,
+        updates: &[usize],
+        block: &dyn Fn(usize) -> &'b [f64],
+        ws: &mut Workspace,
+        mut ls: MatMut<'_, f64>,
+    ) {
+        let symbolic = self.symbolic;
+        let (begin, end) = (symbolic.supernode_begin(), symbolic.supernode_end());
+        let (pattern_ptr, rows) = (symbolic.col_ptr_for_row_idx(), symbolic.row_idx());
+        for &d in updates {
+            let d_pattern = &rows[pattern_ptr[d]..pattern_ptr[d + 1]];
+            let d_ncols = end[d] - begin[d];
+            let ld = MatRef::from_column_major_slice(block(d), d_pattern.len() + d_ncols, d_ncols);
+            let from = d_pattern.partition_point(|&r| r < self.start);
+            let mid = d_pattern[from..].partition_point(|&r| r < self.end);
+            let below = d_pattern.len() - from;
+            let ld_mid_bot = ld.subrows(d_ncols + from, below);
+            let ld_mid = ld_mid_bot.subrows(0, mid);
+            // W = L_mid D (mid × d_ncols), then P = L_mid_bot Wᵀ (below × mid);
+            // the buffers only grow (every entry used is written first).
+            grow(&mut ws.scaled, mid * d_ncols);
+            let mut w =
+                MatMut::from_column_major_slice_mut(&mut ws.scaled[..mid * d_ncols], mid, d_ncols);
+            for k in 0..d_ncols {
+                let dk = ld[(k, k)];
+                for i in 0..mid {
+                    w[(i, k)] = ld_mid[(i, k)] * dk;
+                }
+            }
+            grow(&mut ws.product, below * mid);
+            let mut p =
+                MatMut::from_column_major_slice_mut(&mut ws.product[..below * mid], below, mid);
+            let w = MatRef::from_column_major_slice(&ws.scaled[..mid * d_ncols], mid, d_ncols);
+            matmul(
+                p.rb_mut(),
+                Accum::Replace,
+                ld_mid_bot,
+                w.transpose(),
+                1.0,
+                Par::Seq,
+            );
+            ws.local_rows.clear();
+            ws.local_rows.extend(
+                d_pattern[from..]
+                    .iter()
+                    .map(|&r| self.local_row(r, &ws.global_to_local)),
+            );
+            // Scatter-subtract the lower part, column by column.
+            let (nrows, mut values) = (self.nrows, ls.rb_mut());
+            for jj in 0..mid {
+                let col = ws.local_rows[jj];
+                let target = values
+                    .rb_mut()
+                    .col_mut(col)
+                    .try_as_col_major_mut()
+                    .expect("contiguous")
+                    .as_slice_mut();
+                debug_assert_eq!(target.len(), nrows);
+                let source = &ws.product[jj * below..(jj + 1) * below];
+                for (&row, &v) in ws.local_rows[jj..].iter().zip(&source[jj..]) {
+                    target[row] -= v;
+                }
+            }
+        }
+    }
+
+    /// The dense LDLᵀ of the diagonal block (signed regularisation), the
+    /// rows below solved and scaled by D⁻¹: faer's layout.
+    fn finish(
+        &self,
+        reg: &LdltRegularization<'_, f64>,
+        mut ls: MatMut<'_, f64>,
+        stack: &mut MemBuffer,
+    ) -> Result<usize, LdltError> {
+        let (mut ls_top, mut ls_bot) = ls.rb_mut().split_at_row_mut(self.ncols);
+        let count = match cholesky_in_place(
+            ls_top.rb_mut(),
+            LdltRegularization {
+                dynamic_regularization_signs: reg
+                    .dynamic_regularization_signs
+                    .map(|signs| &signs[self.start..self.end]),
+                dynamic_regularization_delta: reg.dynamic_regularization_delta,
+                dynamic_regularization_epsilon: reg.dynamic_regularization_epsilon,
+            },
+            Par::Seq,
+            MemStack::new(stack),
+            Default::default(),
+        ) {
+            Ok(info) => info.dynamic_regularization_count,
+            Err(LdltError::ZeroPivot { index }) => {
+                return Err(LdltError::ZeroPivot {
+                    index: index + self.start,
+                })
+            }
+        };
+        for j in 0..self.ncols {
+            for i in 0..j {
+                ls_top[(i, j)] = 0.0;
+            }
+        }
+        solve_unit_lower_triangular_in_place(
+            ls_top.rb(),
+            ls_bot.rb_mut().transpose_mut(),
+            Par::Seq,
+        );
+        for j in 0..self.ncols {
+            let d = ls_top[(j, j)].recip();
+            for i in 0..self.pattern.len() {
+                ls_bot[(i, j)] *= d;
+            }
+        }
+        Ok(count)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use faer::sparse::linalg::cholesky::{
+        factorize_symbolic_cholesky, supernodal, CholeskySymbolicParams, SymbolicCholeskyRaw,
+        SymmetricOrdering,
+    };
+    use faer::sparse::linalg::SupernodalThreshold;
+    use faer::sparse::{SparseColMat, Triplet};
+    use faer::Side;
+
+    /// A k×k grid's 5-point Laplacian (+ a shift) bordered by multipliers,
+    /// each coupling three neighbouring nodes with a −ε diagonal: its lower
+    /// triangle and the number of primal unknowns.
+    fn grid_saddle(k: usize) -> (SparseColMat<usize, f64>, usize) {
+        let node = |i: usize, j: usize| i * k + j;
+        let mut lower = Vec::new();
+        for i in 0..k {
+            for j in 0..k {
+                lower.push(Triplet::new(node(i, j), node(i, j), 4.5));
+                if i + 1 < k {
+                    lower.push(Triplet::new(node(i + 1, j), node(i, j), -1.0));
+                }
+                if j + 1 < k {
+                    lower.push(Triplet::new(node(i, j + 1), node(i, j), -1.0));
+                }
+            }
+        }
+        let mut m = k * k;
+        for i in (0..k - 1).step_by(3) {
+            for j in (0..k - 1).step_by(2) {
+                for (c, w) in [
+                    (node(i, j), 1.0),
+                    (node(i + 1, j), 0.5),
+                    (node(i, j + 1), 0.25),
+                ] {
+                    lower.push(Triplet::new(m, c, w));
+                }
+                lower.push(Triplet::new(m, m, -1e-3));
+                m += 1;
+            }
+        }
+        (
+            SparseColMat::try_new_from_triplets(m, m, &lower).unwrap(),
+            k * k,
+        )
+    }
+
+    /// Two threads on the tree give faer's supernodal factor to round-off
+    /// (AMD order, signed regularisation), with every supernode in exactly
+    /// one bin or the top, both bins used.
+    #[test]
+    fn tree_factorisation_equals_faers() {
+        let (a, n_primal) = grid_saddle(60);
+        let n = a.nrows();
+        let symbolic = factorize_symbolic_cholesky(
+            a.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let SymbolicCholeskyRaw::Supernodal(raw) = symbolic.raw() else {
+            panic!("forced supernodal")
+        };
+        let schedule = TreeSchedule::new(raw).expect("parents come after their children");
+        for bin in 0..2u8 {
+            assert!(schedule.owner.contains(&bin), "bin {bin} empty");
+        }
+        let tops = schedule.owner.iter().filter(|&&o| o == TOP).count();
+        assert!(tops > 0 && tops == schedule.top.len());
+        assert!(schedule.top.iter().all(|&s| schedule.owner[s] == TOP));
+        let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
+        let (ordered, signs, _) = super::super::ordered_equilibrated(
+            &symbolic,
+            a.as_ref(),
+            &vec![1.0; n],
+            &signs,
+            Par::Seq,
+        );
+        let regularization = LdltRegularization {
+            dynamic_regularization_signs: Some(&signs),
+            dynamic_regularization_delta: 1e-12,
+            dynamic_regularization_epsilon: 1e-14,
+        };
+        let mut faers = vec![0.0; raw.len_val()];
+        let mut buffer = MemBuffer::new(supernodal::factorize_supernodal_numeric_ldlt_scratch::<
+            usize,
+            f64,
+        >(raw, Par::Seq, Default::default()));
+        supernodal::factorize_supernodal_numeric_ldlt(
+            &mut faers,
+            ordered.as_ref(),
+            regularization,
+            raw,
+            Par::Seq,
+            MemStack::new(&mut buffer),
+            Default::default(),
+        )
+        .unwrap();
+        let mut ours = vec![f64::NAN; raw.len_val()];
+        factorize(&mut ours, ordered.as_ref(), &regularization, raw, &schedule).unwrap();
+        let scale = faers.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let worst = faers
+            .iter()
+            .zip(&ours)
+            .fold(0.0f64, |m, (f, o)| m.max((f - o).abs()));
+        assert!(
+            worst <= 1e-13 * scale,
+            "factor values differ by {worst:e} (scale {scale:e})"
+        );
+    }
+}
