@@ -60,7 +60,8 @@ pub fn keep_freed_memory() -> bool {
 /// factorisation; 2 or more: two threads on the elimination tree,
 /// `tree_ldlt`). Per thread, so concurrent runs (tests, `study --jobs`)
 /// keep their own. Solves, Cholesky and LU are sequential: faer's own
-/// threads lost on this 2-core machine (docs/work-precision.md, "Threads").
+/// threads lost on this 2-core machine (docs/work-precision.md, "Two
+/// threads on the elimination tree").
 pub fn set_threads(threads: usize) {
     THREADS.with(|t| t.set(threads.max(1)));
 }
