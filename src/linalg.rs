@@ -66,6 +66,12 @@ pub fn set_threads(threads: usize) {
     THREADS.with(|t| t.set(threads.max(1)));
 }
 
+/// Whether this thread's supernodal LDLᵀ factorisations run on two
+/// threads ([`set_threads`]).
+fn two_threads() -> bool {
+    THREADS.with(|t| t.get()) >= 2
+}
+
 /// faer's parallelism: sequential (see [`set_threads`]).
 fn parallelism() -> Par {
     Par::Seq
@@ -1510,7 +1516,8 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
 }
 
 /// The LDLᵀ analysis in the ordering `solves` asks for, with its two
-/// threads' schedule when supernodal.
+/// threads' schedule when supernodal and this thread factorises on two
+/// ([`set_threads`]).
 fn ldlt_analysis(
     a: &SparseColMat<usize, f64>,
     n_primal: usize,
@@ -1519,8 +1526,10 @@ fn ldlt_analysis(
 ) -> Result<SymbolicAnalysis> {
     let symbolic = analyze_symmetric(a, n_primal, solves, what)?;
     let schedule = match symbolic.raw() {
-        SymbolicCholeskyRaw::Supernodal(raw) => TreeSchedule::new(raw).map(Arc::new),
-        SymbolicCholeskyRaw::Simplicial(_) => None,
+        SymbolicCholeskyRaw::Supernodal(raw) if two_threads() => {
+            TreeSchedule::new(raw).map(Arc::new)
+        }
+        _ => None,
     };
     Ok(SymbolicAnalysis::Ldlt {
         symbolic: Arc::new(symbolic),
@@ -1749,7 +1758,7 @@ impl RegularizedLdlt {
             dynamic_regularization_epsilon: f64::EPSILON * scaled_norm,
         };
         let stack = MemStack::new(&mut buffer);
-        let tree = schedule.filter(|_| THREADS.with(|t| t.get()) >= 2);
+        let tree = schedule.filter(|_| two_threads());
         let factorized = match symbolic.raw() {
             SymbolicCholeskyRaw::Simplicial(raw) => simplicial::factorize_simplicial_numeric_ldlt(
                 &mut values,

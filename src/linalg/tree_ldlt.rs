@@ -82,10 +82,10 @@ impl TreeSchedule {
         // Split off the top: always the heaviest subtree of the frontier.
         let mut frontier: Vec<usize> = (0..n_super).filter(|&s| parent[s] == usize::MAX).collect();
         let mut top: Vec<usize> = Vec::new();
+        let mut top_work = 0.0;
         let mut best: Option<(f64, Vec<usize>, Vec<usize>)> = None;
         for _ in 0..MAX_SPLITS {
             frontier.sort_by(|x, y| work[*y].total_cmp(&work[*x]));
-            let top_work: f64 = top.iter().map(|&s| own[s]).sum();
             let time = top_work + balanced(&frontier, &work).0;
             if best.as_ref().is_none_or(|(t, ..)| time < *t) {
                 best = Some((time, frontier.clone(), top.clone()));
@@ -96,6 +96,7 @@ impl TreeSchedule {
             }
             frontier.remove(0);
             top.push(heaviest);
+            top_work += own[heaviest];
             frontier.extend(children[heaviest].iter().copied());
         }
         let (_, frontier, mut top) = best?;
@@ -140,9 +141,7 @@ impl TreeSchedule {
             updates,
         })
     }
-}
 
-impl TreeSchedule {
     fn updates_of(&self, s: usize) -> &[usize] {
         &self.updates[self.update_ptr[s]..self.update_ptr[s + 1]]
     }
@@ -326,19 +325,8 @@ fn factor_top_supernode<'b>(
     shape.add_columns_of_a(inputs.a_lower, &ws.global_to_local, ls.rb_mut());
     let updates = inputs.schedule.updates_of(s);
     // Halves of about equal work: alternate, heaviest (latest) first.
-    let (mine, theirs): (Vec<usize>, Vec<usize>) = {
-        let mut all: Vec<usize> = updates.to_vec();
-        all.reverse();
-        let (mut a, mut b) = (Vec::new(), Vec::new());
-        for (k, d) in all.into_iter().enumerate() {
-            if k % 2 == 0 {
-                a.push(d)
-            } else {
-                b.push(d)
-            }
-        }
-        (a, b)
-    };
+    let mine: Vec<usize> = updates.iter().rev().step_by(2).copied().collect();
+    let theirs: Vec<usize> = updates.iter().rev().skip(1).step_by(2).copied().collect();
     scratch.clear();
     scratch.resize(shape.nrows * shape.ncols, 0.0);
     std::thread::scope(|scope| {
