@@ -3,7 +3,7 @@
 //! same pattern can be refactorised numerically only.
 
 use crate::error::{Error, Result};
-use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::solvers::Solve;
 use faer::perm::PermRef;
@@ -13,7 +13,6 @@ use faer::sparse::linalg::cholesky::{
     SymbolicCholeskyRaw, SymmetricOrdering,
 };
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::utils::{permute_self_adjoint_scratch, permute_self_adjoint_to_unsorted};
 use faer::sparse::{FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat, Triplet};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
@@ -36,7 +35,10 @@ thread_local! {
 /// iteration's vectors of the problem's size). Measured on the shell,
 /// active set at n = 128, same binary without and with it (issue 13):
 /// system time 12.5 → 2.9 s, solver 43.9 → 34.6 s, peak RSS 1663 → 1774 MB.
-/// Returns whether both settings were accepted (other C libraries: nothing
+/// One arena for every thread: the factorisation's and solves' second
+/// threads otherwise keep an arena of their own, never trimmed (the shell's
+/// n = 256 active set: peak 3,928,728 → 3,892,684 kB, same time).
+/// Returns whether the settings were accepted (other C libraries: nothing
 /// is changed, false).
 pub fn keep_freed_memory() -> bool {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -47,6 +49,7 @@ pub fn keep_freed_memory() -> bool {
         unsafe {
             libc::mallopt(libc::M_MMAP_THRESHOLD, i32::MAX) == 1
                 && libc::mallopt(libc::M_TRIM_THRESHOLD, -1) == 1
+                && libc::mallopt(libc::M_ARENA_MAX, 1) == 1
         }
     }
     #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
@@ -58,10 +61,10 @@ pub fn keep_freed_memory() -> bool {
 /// Threads for the supernodal LDLᵀ factorisations made on the calling
 /// thread from now on (`solver.threads`; 1 or 0: faer's sequential
 /// factorisation; 2 or more: two threads on the elimination tree,
-/// `tree_ldlt`). Per thread, so concurrent runs (tests, `study --jobs`)
-/// keep their own. Solves, Cholesky and LU are sequential: faer's own
-/// threads lost on this 2-core machine (docs/work-precision.md, "Two
-/// threads on the elimination tree").
+/// `tree_ldlt`, whose one-column solves use the same split). Per thread,
+/// so concurrent runs (tests, `study --jobs`) keep their own. Cholesky and
+/// LU are sequential: faer's own threads lost on this 2-core machine
+/// (docs/work-precision.md, "Two threads on the elimination tree").
 pub fn set_threads(threads: usize) {
     THREADS.with(|t| t.set(threads.max(1)));
 }
@@ -475,8 +478,8 @@ impl SolveQuality {
         componentwise: Some(0.0),
     };
 
-    fn of(a: &SparseColMat<usize, f64>, storage: Storage, x: &[f64], b: &[f64]) -> Self {
-        Self::with_product(a, storage, x, b, None)
+    fn of(a: &SparseColMat<usize, f64>, storage: Storage, norm: f64, x: &[f64], b: &[f64]) -> Self {
+        Self::with_product(a, storage, norm, x, b, None)
     }
 
     /// [`SolveQuality::of`], from A x when the solve's refinement computed it
@@ -484,6 +487,7 @@ impl SolveQuality {
     fn with_product(
         a: &SparseColMat<usize, f64>,
         storage: Storage,
+        norm: f64,
         x: &[f64],
         b: &[f64],
         ax: Option<&[f64]>,
@@ -506,7 +510,7 @@ impl SolveQuality {
         });
         SolveQuality {
             relative,
-            backward: size / (norm_inf(a.val()) * norm_inf(x) + norm_inf(b)),
+            backward: size / (norm * norm_inf(x) + norm_inf(b)),
             componentwise,
         }
     }
@@ -537,6 +541,7 @@ impl SolveQuality {
 fn check_solve(
     a: &SparseColMat<usize, f64>,
     storage: Storage,
+    norm: f64,
     f: &Factorization,
     b: &[f64],
     what: &str,
@@ -547,7 +552,7 @@ fn check_solve(
         return Ok((Vec::new(), SolveQuality::EXACT));
     }
     if norm_inf(b) == 0.0 {
-        let quality = check_solve(a, storage, f, &test_rhs(a.nrows()), what)?.1;
+        let quality = check_solve(a, storage, norm, f, &test_rhs(a.nrows()), what)?.1;
         return Ok((vec![0.0; b.len()], quality));
     }
     let mut x = b.to_vec();
@@ -560,7 +565,7 @@ fn check_solve(
             None
         }
     };
-    let quality = judge_solve(a, storage, &x, b, ax.as_deref(), what)?;
+    let quality = judge_solve(a, storage, norm, &x, b, ax.as_deref(), what)?;
     Ok((x, quality))
 }
 
@@ -569,6 +574,7 @@ fn check_solve(
 fn judge_solve(
     a: &SparseColMat<usize, f64>,
     storage: Storage,
+    norm: f64,
     x: &[f64],
     b: &[f64],
     ax: Option<&[f64]>,
@@ -581,7 +587,7 @@ fn judge_solve(
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let quality = SolveQuality::with_product(a, storage, x, b, ax);
+    let quality = SolveQuality::with_product(a, storage, norm, x, b, ax);
     let rel = quality.relative;
     if rel > 1e-6 {
         return Err(Error::numerical(
@@ -664,14 +670,21 @@ pub fn first_non_finite(v: &[f64]) -> Option<usize> {
 enum SymbolicAnalysis {
     Lu(SymbolicLu<usize>),
     Ldlt {
-        symbolic: Arc<SymbolicCholesky<usize>>,
-        /// The two threads' split of a supernodal analysis ([`set_threads`]).
-        schedule: Option<Arc<TreeSchedule>>,
+        analysis: LdltAnalysis,
         n_primal: usize,
         /// The order it was analysed for ([`Solves`]).
         order: Solves,
     },
     Llt(SymbolicLlt<usize>),
+}
+
+/// What every numeric LDLᵀ of one pattern reads.
+struct LdltAnalysis {
+    symbolic: Arc<SymbolicCholesky<usize>>,
+    /// The two threads' split of a supernodal analysis ([`set_threads`]).
+    schedule: Option<Arc<TreeSchedule>>,
+    /// Where the matrix's entries go in that order.
+    ordered: OrderedPattern,
 }
 
 /// A factorisation whose symbolic analysis (fill-reducing ordering,
@@ -703,6 +716,8 @@ pub struct ReusableFactorization {
     /// A's kind and solves, for the fallback to A itself.
     kind: MatrixKind,
     solves: Solves,
+    /// How A is stored (its pattern is the analysed one).
+    storage: Storage,
 }
 
 /// A matrix shared with the factorisations that refine against it.
@@ -738,6 +753,8 @@ struct DirectFactorizer {
     /// The kind of the matrices it is given (a symmetric one may be its
     /// lower triangle, [`Storage`]).
     kind: MatrixKind,
+    /// How they are stored (their pattern is the analysed one).
+    storage: Storage,
     symbolic_analyses: usize,
     numeric_factorizations: usize,
     /// Why each fallback was taken, in order (named by a failure of the
@@ -824,6 +841,7 @@ impl ReusableFactorization {
             changing: None,
             kind,
             solves,
+            storage: Storage::of(a.as_ref(), kind),
         })
     }
 
@@ -963,8 +981,8 @@ impl ReusableFactorization {
         let Some(plan) = self.condensation.clone() else {
             return self.direct.factorize_and_solve(matrix.clone(), b, what);
         };
-        check_entries(a, what)?;
-        let storage = Storage::of(a.as_ref(), self.kind);
+        let norm = checked_norm(a, what)?;
+        let storage = self.storage;
         let (s, local) = self.condense(&plan, a, changed, what)?;
         let b_s = plan.condense_rhs(&local, b, false);
         // S is shared with its factorisation (kept there for the refinement).
@@ -988,7 +1006,7 @@ impl ReusableFactorization {
             local,
             schur,
             matrix: RefinementMatrix::of(&matrix, storage, &self.pattern),
-            norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
+            norm: norm.max(f64::MIN_POSITIVE),
         };
         let product = |v: &[f64]| condensed.matrix.product(v);
         let refined_ax = refine_to_round_off(product, condensed.norm, &mut x, b, |d| {
@@ -1004,9 +1022,9 @@ impl ReusableFactorization {
         let judged_ax = shared.then_some(refined_ax);
         let f = Factorization::Condensed(Box::new(condensed));
         let checked = if norm_inf(b) == 0.0 {
-            check_solve(a, storage, &f, b, what)
+            check_solve(a, storage, norm, &f, b, what)
         } else {
-            judge_solve(a, storage, &x, b, judged_ax.as_deref(), what).map(|q| (x, q))
+            judge_solve(a, storage, norm, &x, b, judged_ax.as_deref(), what).map(|q| (x, q))
         };
         if let Ok((x, quality)) = checked {
             if quality.condensed_accepted(schur_relative) {
@@ -1065,15 +1083,52 @@ impl ReusableFactorization {
     }
 }
 
-/// An error when an entry of `a` is not finite.
-fn check_entries(a: &SparseColMat<usize, f64>, what: &str) -> Result<()> {
-    match first_non_finite(a.val()) {
-        Some(k) => Err(Error::numerical(
+/// max |a_ij| (one pass over the values); an error when an entry of `a`
+/// is not finite.
+fn checked_norm(a: &SparseColMat<usize, f64>, what: &str) -> Result<f64> {
+    // Eight lanes of compare-and-select (they vectorise; f64::max's NaN
+    // rule does not): NaN fails both comparisons, ∞ the second.
+    const LANES: usize = 8;
+    let part = |values: &[f64]| {
+        let (mut norm, mut finite) = ([0.0f64; LANES], [true; LANES]);
+        let mut lanes = values.chunks_exact(LANES);
+        for chunk in &mut lanes {
+            for ((m, ok), v) in norm.iter_mut().zip(&mut finite).zip(chunk) {
+                let v = v.abs();
+                *m = if v > *m { v } else { *m };
+                *ok &= v <= f64::MAX;
+            }
+        }
+        for (v, ok) in lanes.remainder().iter().zip(&mut finite) {
+            let v = v.abs();
+            norm[0] = if v > norm[0] { v } else { norm[0] };
+            *ok &= v <= f64::MAX;
+        }
+        (norm_inf(&norm), finite.iter().all(|&ok| ok))
+    };
+    let values = a.val();
+    let (norm, finite) = match two_threads() && values.len() >= PARALLEL_ENTRIES {
+        true => {
+            let (head, tail) = values.split_at(values.len() / 2);
+            std::thread::scope(|scope| {
+                let tail = scope.spawn(|| part(tail));
+                let (n1, f1) = part(head);
+                let (n2, f2) = tail.join().expect("the entry check's second thread");
+                (n1.max(n2), f1 & f2)
+            })
+        }
+        false => part(values),
+    };
+    match finite {
+        true => Ok(norm),
+        false => Err(Error::numerical(
             what,
             "matrix entries",
-            format!("entry {k} is not finite"),
+            format!(
+                "entry {} is not finite",
+                first_non_finite(values).expect("a non-finite entry")
+            ),
         )),
-        None => Ok(()),
     }
 }
 
@@ -1095,6 +1150,7 @@ impl DirectFactorizer {
         Ok(DirectFactorizer {
             symbolic,
             kind,
+            storage: Storage::of(a.as_ref(), kind),
             symbolic_analyses: 1,
             numeric_factorizations: 0,
             fallbacks: Vec::new(),
@@ -1112,9 +1168,9 @@ impl DirectFactorizer {
         what: &str,
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let a: &SparseColMat<usize, f64> = &matrix;
-        check_entries(a, what)?;
+        let norm = checked_norm(a, what)?;
         parallelism();
-        let storage = Storage::of(a.as_ref(), self.kind);
+        let storage = self.storage;
         let f = match &self.symbolic {
             SymbolicAnalysis::Lu(symbolic) => Factorization::Lu(Box::new(
                 Lu::try_new_with_symbolic(symbolic.clone(), storage.whole(a).as_ref().as_ref()).map_err(|e| {
@@ -1128,7 +1184,7 @@ impl DirectFactorizer {
                 })?,
             )),
             SymbolicAnalysis::Ldlt {
-                symbolic, schedule, n_primal, ..
+                analysis, n_primal, ..
             } if *n_primal == a.nrows() => {
                 // Every pivot positive (the SPD fallback): no pivot is
                 // regularised, so the refined solve is backward stable; its
@@ -1136,14 +1192,14 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(symbolic.clone(), schedule.as_deref(), matrix.to_arc(), storage, *n_primal, &self.spare_factors, what)
+                let solved = RegularizedLdlt::new(analysis, matrix.to_arc(), storage, norm, &self.spare_factors, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
                         let rhs = if norm_inf(b) == 0.0 { test_rhs(a.nrows()) } else { b.to_vec() };
                         let mut x = rhs.clone();
                         f.solve_in_place(&mut x);
-                        let quality = SolveQuality::of(a, storage, &x, &rhs);
+                        let quality = SolveQuality::of(a, storage, norm, &x, &rhs);
                         (quality.backward <= BACKWARD_ACCEPTED).then(|| {
                             let x = if norm_inf(b) == 0.0 { vec![0.0; b.len()] } else { x };
                             (f, x, quality.relative)
@@ -1158,24 +1214,22 @@ impl DirectFactorizer {
                 return self.retry_with(lu, why, matrix.clone(), b, what);
             }
             SymbolicAnalysis::Ldlt {
-                symbolic,
-                schedule,
+                analysis,
                 n_primal,
                 order,
             } => {
                 let (n_primal, order) = (*n_primal, *order);
                 let ldlt =
                     RegularizedLdlt::new(
-                        symbolic.clone(),
-                        schedule.as_deref(),
+                        analysis,
                         matrix.to_arc(),
                         storage,
-                        n_primal,
+                        norm,
                         &self.spare_factors,
                         what,
                     );
                 let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
-                    let (x, quality) = check_solve(a, storage, &f, b, what)?;
+                    let (x, quality) = check_solve(a, storage, norm, &f, b, what)?;
                     Ok((f, x, quality))
                 });
                 let why = match solved {
@@ -1218,7 +1272,7 @@ impl DirectFactorizer {
             ),
         };
         self.numeric_factorizations += 1;
-        match check_solve(a, storage, &f, b, what) {
+        match check_solve(a, storage, norm, &f, b, what) {
             Ok((x, quality)) => Ok((f, x, quality.relative)),
             Err(e) if matches!(self.symbolic, SymbolicAnalysis::Llt(_)) => {
                 // An SPD matrix too ill-conditioned for a plain Cholesky solve
@@ -1360,20 +1414,42 @@ impl AnalysedPattern {
     }
 }
 
-/// A 64-bit hash of `a`'s pattern: every column's length, then every row
-/// index, column by column ([`PatternHasher`]).
+/// A 64-bit hash of `a`'s pattern: every column's length and the first
+/// half of the row indices (column by column), then the second half
+/// ([`PatternHasher`]); the halves hash on two threads when factorisations
+/// have two ([`set_threads`]) and the pattern is large: the hash is the
+/// same either way.
 fn pattern_hash(a: &SparseColMat<usize, f64>) -> u64 {
     let s = a.symbolic();
-    let mut hash = PatternHasher::default();
+    let mut first = PatternHasher::default();
     for j in 0..a.ncols() {
-        hash.push(s.row_idx_of_col_raw(j).len());
+        first.push(s.row_idx_of_col_raw(j).len());
     }
-    match s.col_nnz() {
+    let rows: std::borrow::Cow<'_, [usize]> = match s.col_nnz() {
         // Compressed: the row indices are one slice.
-        None => hash.extend(&s.row_idx()[..s.col_ptr()[a.ncols()]]),
-        Some(_) => (0..a.ncols()).for_each(|j| hash.extend(s.row_idx_of_col_raw(j))),
-    }
-    hash.finish()
+        None => std::borrow::Cow::Borrowed(&s.row_idx()[..s.col_ptr()[a.ncols()]]),
+        Some(_) => (0..a.ncols())
+            .flat_map(|j| s.row_idx_of_col_raw(j).iter().copied())
+            .collect(),
+    };
+    let (head, tail) = rows.split_at(rows.len() / 2);
+    let hash_tail = || {
+        let mut h = PatternHasher::default();
+        h.extend(tail);
+        h.finish()
+    };
+    let tail_hash = match two_threads() && rows.len() >= PARALLEL_ENTRIES {
+        true => std::thread::scope(|scope| {
+            let tail_hash = scope.spawn(hash_tail);
+            first.extend(head);
+            tail_hash.join().expect("the pattern hash's second thread")
+        }),
+        false => {
+            first.extend(head);
+            hash_tail()
+        }
+    };
+    PatternHasher::step(first.finish(), tail_hash as usize)
 }
 
 /// FxHash's multiply-rotate step dealt round-robin to four independent
@@ -1491,10 +1567,10 @@ impl Factorization {
 fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
     let n = a.nrows();
     let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
-    let mut d = vec![1.0; n];
-    for _ in 0..3 {
+    // The row maxima of |D A D| over columns `range`.
+    let row_maxima = |d: &[f64], range: std::ops::Range<usize>| {
         let mut row_max = vec![0.0f64; n];
-        for j in 0..n {
+        for j in range {
             // Column j's own maximum in a register: one scattered update
             // per entry instead of two (max is exact: the same d).
             let (dj, mut col_max) = (d[j], 0.0f64);
@@ -1506,6 +1582,29 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
             }
             row_max[j] = row_max[j].max(col_max);
         }
+        row_max
+    };
+    // Two threads take half the entries each; the maximum of their maxima
+    // is exact, so the scaling is the same bit for bit.
+    let split = match two_threads() && values.len() >= PARALLEL_ENTRIES {
+        true => col_ptr.partition_point(|&p| p < values.len() / 2).min(n),
+        false => n,
+    };
+    let mut d = vec![1.0; n];
+    for _ in 0..3 {
+        let row_max = match split < n {
+            true => std::thread::scope(|scope| {
+                let second = scope.spawn(|| row_maxima(&d, split..n));
+                let mut first = row_maxima(&d, 0..split);
+                let second = second.join().expect("the equilibration's second thread");
+                first
+                    .iter_mut()
+                    .zip(&second)
+                    .for_each(|(a, b)| *a = a.max(*b));
+                first
+            }),
+            false => row_maxima(&d, 0..n),
+        };
         for (di, m) in d.iter_mut().zip(&row_max) {
             if *m > 0.0 && m.is_finite() {
                 *di /= m.sqrt();
@@ -1514,6 +1613,10 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
     }
     d
 }
+
+/// Matrices with at least this many entries are checked and equilibrated
+/// on two threads when factorisations have two ([`set_threads`]).
+const PARALLEL_ENTRIES: usize = 1 << 20;
 
 /// The LDLᵀ analysis in the ordering `solves` asks for, with its two
 /// threads' schedule when supernodal and this thread factorises on two
@@ -1531,9 +1634,13 @@ fn ldlt_analysis(
         }
         _ => None,
     };
+    let ordered = OrderedPattern::new(&symbolic, a, n_primal);
     Ok(SymbolicAnalysis::Ldlt {
-        symbolic: Arc::new(symbolic),
-        schedule,
+        analysis: LdltAnalysis {
+            symbolic: Arc::new(symbolic),
+            schedule,
+            ordered,
+        },
         n_primal,
         order: solves,
     })
@@ -1709,6 +1816,9 @@ impl std::ops::Deref for Shared<'_> {
 pub struct RegularizedLdlt {
     symbolic: Arc<SymbolicCholesky<usize>>,
     values: Vec<f64>,
+    /// The two threads' split of the tree when factorised on two: its
+    /// one-column solves run on two as well ([`tree_ldlt::solve_in_place`]).
+    schedule: Option<Arc<TreeSchedule>>,
     /// Symmetric equilibration D: the factors are those of D A D.
     scale: Vec<f64>,
     /// The matrix itself, for the refinement (shared with the caller's
@@ -1732,33 +1842,49 @@ impl Drop for RegularizedLdlt {
 }
 
 impl RegularizedLdlt {
-    /// `schedule`: the two threads' split of a supernodal `symbolic`, used
-    /// when this thread's factorisations have two threads ([`set_threads`]).
+    /// The two threads' split of the analysis is used when this thread's
+    /// factorisations have two threads ([`set_threads`]); `norm` = max |a_ij|.
     fn new(
-        symbolic: Arc<SymbolicCholesky<usize>>,
-        schedule: Option<&TreeSchedule>,
+        analysis: &LdltAnalysis,
         matrix: Arc<SparseColMat<usize, f64>>,
         storage: Storage,
-        n_primal: usize,
+        norm: f64,
         spare_factors: &Arc<SpareFactors>,
         what: &str,
     ) -> Result<Self> {
+        let LdltAnalysis {
+            symbolic,
+            schedule,
+            ordered,
+        } = analysis;
+        let symbolic = symbolic.clone();
         let a = &*matrix;
         let n = a.nrows();
         let scale = symmetric_equilibration(a);
-        let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
         let mut values = spare_factors.take(symbolic.len_val());
         let par = parallelism();
-        let (scaled, signs, mut buffer) =
-            ordered_equilibrated(&symbolic, a.as_ref(), &scale, &signs, par);
-        let scaled_norm = norm_inf(&scaled.values).max(f64::MIN_POSITIVE);
+        let scaled = ordered.equilibrated(a, &scale);
+        let scaled_norm = scaled.norm.max(f64::MIN_POSITIVE);
         let regularization = LdltRegularization {
-            dynamic_regularization_signs: Some(&signs),
+            dynamic_regularization_signs: Some(&ordered.signs),
             dynamic_regularization_delta: REGULARIZATION * scaled_norm,
             dynamic_regularization_epsilon: f64::EPSILON * scaled_norm,
         };
+        let mut buffer = MemBuffer::new(match symbolic.raw() {
+            SymbolicCholeskyRaw::Simplicial(_) => {
+                simplicial::factorize_simplicial_numeric_ldlt_scratch::<usize, f64>(n)
+            }
+            SymbolicCholeskyRaw::Supernodal(raw) => {
+                supernodal::factorize_supernodal_numeric_ldlt_scratch::<usize, f64>(
+                    raw,
+                    par,
+                    Default::default(),
+                )
+            }
+        });
         let stack = MemStack::new(&mut buffer);
-        let tree = schedule.filter(|_| two_threads());
+        let tree = schedule.as_ref().filter(|_| two_threads());
+        let schedule = tree.cloned();
         let factorized = match symbolic.raw() {
             SymbolicCholeskyRaw::Simplicial(raw) => simplicial::factorize_simplicial_numeric_ldlt(
                 &mut values,
@@ -1773,7 +1899,7 @@ impl RegularizedLdlt {
                 scaled.as_ref(),
                 &regularization,
                 raw,
-                tree.expect("matched"),
+                tree.expect("matched").as_ref(),
             )
             .map(|_| ()),
             SymbolicCholeskyRaw::Supernodal(raw) => supernodal::factorize_supernodal_numeric_ldlt(
@@ -1792,8 +1918,9 @@ impl RegularizedLdlt {
         Ok(RegularizedLdlt {
             symbolic,
             values,
+            schedule,
             scale,
-            norm: norm_inf(a.val()).max(f64::MIN_POSITIVE),
+            norm: norm.max(f64::MIN_POSITIVE),
             storage,
             matrix,
             raw_solves_suffice: false,
@@ -1828,13 +1955,27 @@ impl RegularizedLdlt {
             }
         };
         scale_all(b);
-        let mut buffer = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(k, par));
-        LdltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
-            Conj::No,
-            MatMut::from_column_major_slice_mut(b, n, k),
-            par,
-            MemStack::new(&mut buffer),
-        );
+        match (&self.schedule, self.symbolic.raw(), self.symbolic.perm()) {
+            (Some(schedule), SymbolicCholeskyRaw::Supernodal(raw), Some(perm)) if k == 1 => {
+                // faer's solve permutes the same way around its own.
+                let (forward, inverse) = perm.arrays();
+                let mut x: Vec<f64> = forward.iter().map(|&i| b[i]).collect();
+                tree_ldlt::solve_in_place(raw, &self.values, schedule, &mut x);
+                for (v, &i) in b.iter_mut().zip(inverse) {
+                    *v = x[i];
+                }
+            }
+            _ => {
+                let mut buffer =
+                    MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(k, par));
+                LdltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+                    Conj::No,
+                    MatMut::from_column_major_slice_mut(b, n, k),
+                    par,
+                    MemStack::new(&mut buffer),
+                );
+            }
+        }
         scale_all(b);
     }
 
@@ -1871,98 +2012,135 @@ impl RegularizedLdlt {
     }
 }
 
-/// P (D A D) Pᵀ as the numeric factorisation of `symbolic` reads it: in
-/// its order P, on its side (supernodal: lower, simplicial: upper), from
-/// A's lower triangle; with the signs in that order and the scratch of the
-/// factorisation. faer's own entry point makes this permuted copy itself,
-/// beside the caller's D A D: made here once, with the scaling applied to
-/// it, one copy of A's values less is alive at the factorisation's peak
-/// (S at the shell's n = 256: 118 MB) and the factors are the same bit for
-/// bit (each entry is v (d_i d_j) either way).
-fn ordered_equilibrated(
-    symbolic: &SymbolicCholesky<usize>,
-    a: SparseColMatRef<'_, usize, f64>,
-    scale: &[f64],
-    signs: &[i8],
-    par: Par,
-) -> (OrderedMatrix, Vec<i8>, MemBuffer) {
-    let n = a.nrows();
-    let identity: Vec<usize>;
-    let perm = match symbolic.perm() {
-        Some(perm) => perm,
-        None => {
-            identity = (0..n).collect();
-            PermRef::new_checked(&identity, &identity, n)
+/// The pattern of P A Pᵀ as the numeric factorisation of a symbolic
+/// analysis reads it (in its order P, on its side: supernodal lower,
+/// simplicial upper; from A's lower triangle), and the signs in that order.
+/// Computed once per analysis: each factorisation then only scatters
+/// A's values (a counting sort of S's pattern per Newton step took 4.8 s
+/// of the shell's n = 256 active set, 17 steps).
+struct OrderedPattern {
+    /// P A Pᵀ's pattern, rows unsorted within a column: in each column the
+    /// entries in the order A's columns give them.
+    pattern: SymbolicSparseColMat<usize>,
+    /// The inverse order: inverse[old] = new.
+    inverse: Vec<usize>,
+    /// Whether P A Pᵀ is read by its upper triangle (simplicial).
+    upper: bool,
+    /// The signs of the regularisation in the order P.
+    signs: Vec<i8>,
+}
+
+impl OrderedPattern {
+    /// The pattern of `a` (n_primal positive signs, then negative) in the
+    /// order of `symbolic`.
+    fn new(
+        symbolic: &SymbolicCholesky<usize>,
+        a: &SparseColMat<usize, f64>,
+        n_primal: usize,
+    ) -> Self {
+        let n = a.nrows();
+        let (forward, inverse): (Vec<usize>, Vec<usize>) = match symbolic.perm() {
+            Some(perm) => (perm.arrays().0.to_vec(), perm.arrays().1.to_vec()),
+            None => ((0..n).collect(), (0..n).collect()),
+        };
+        let upper = matches!(symbolic.raw(), SymbolicCholeskyRaw::Simplicial(_));
+        let mut ordered = OrderedPattern {
+            pattern: SymbolicSparseColMat::new_checked(n, n, vec![0; n + 1], None, Vec::new()),
+            inverse,
+            upper,
+            signs: forward
+                .iter()
+                .map(|&i| if i < n_primal { 1 } else { -1 })
+                .collect(),
+        };
+        let mut counts = vec![0usize; n + 1];
+        ordered.for_each_entry(a, |_, (_, c)| counts[c + 1] += 1);
+        for c in 0..n {
+            counts[c + 1] += counts[c];
         }
-    };
-    let (fwd, _) = perm.arrays();
-    let (side, factor_scratch) = match symbolic.raw() {
-        SymbolicCholeskyRaw::Simplicial(_) => (
-            Side::Upper,
-            simplicial::factorize_simplicial_numeric_ldlt_scratch::<usize, f64>(n),
-        ),
-        SymbolicCholeskyRaw::Supernodal(raw) => (
-            Side::Lower,
-            supernodal::factorize_supernodal_numeric_ldlt_scratch::<usize, f64>(
-                raw,
-                par,
-                Default::default(),
-            ),
-        ),
-    };
-    let mut buffer = MemBuffer::new(StackReq::any_of(&[
-        permute_self_adjoint_scratch::<usize>(n),
-        factor_scratch,
-    ]));
-    let nnz = a.val().len();
-    let mut ordered = OrderedMatrix {
-        col_ptr: vec![0; n + 1],
-        row_idx: vec![0; nnz],
-        values: vec![0.0; nnz],
-    };
-    permute_self_adjoint_to_unsorted(
-        &mut ordered.values,
-        &mut ordered.col_ptr,
-        &mut ordered.row_idx,
-        a,
-        perm,
-        Side::Lower,
-        side,
-        MemStack::new(&mut buffer),
-    );
-    let len = ordered.col_ptr[n];
-    ordered.row_idx.truncate(len);
-    ordered.values.truncate(len);
-    let ordered_scale: Vec<f64> = fwd.iter().map(|&i| scale[i]).collect();
-    for j in 0..n {
-        for k in ordered.col_ptr[j]..ordered.col_ptr[j + 1] {
-            ordered.values[k] *= ordered_scale[ordered.row_idx[k]] * ordered_scale[j];
+        let mut next = counts[..n].to_vec();
+        let mut row_idx = vec![0; counts[n]];
+        ordered.for_each_entry(a, |_, (r, c)| {
+            row_idx[next[c]] = r;
+            next[c] += 1;
+        });
+        ordered.pattern = SymbolicSparseColMat::new_unsorted_checked(n, n, counts, None, row_idx);
+        ordered
+    }
+
+    /// `visit(k, (row, column))` for every entry k of A's lower triangle,
+    /// (row, column) its place in P A Pᵀ on the side read; A's columns in
+    /// order.
+    fn for_each_entry(
+        &self,
+        a: &SparseColMat<usize, f64>,
+        mut visit: impl FnMut(usize, (usize, usize)),
+    ) {
+        let (col_ptr, row_idx) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
+        for j in 0..a.ncols() {
+            let pj = self.inverse[j];
+            for k in col_ptr[j]..col_ptr[j + 1] {
+                let i = row_idx[k];
+                if i < j {
+                    continue;
+                }
+                let pi = self.inverse[i];
+                let place = match self.upper {
+                    false => (pi.max(pj), pi.min(pj)),
+                    true => (pi.min(pj), pi.max(pj)),
+                };
+                visit(k, place);
+            }
         }
     }
-    let ordered_signs = fwd.iter().map(|&i| signs[i]).collect();
-    (ordered, ordered_signs, buffer)
+
+    /// P (D A D) Pᵀ's values, A of this pattern, D = diag(`scale`): each
+    /// entry v (d_i d_j), as faer's permutation and a scaling gave them.
+    fn equilibrated(&self, a: &SparseColMat<usize, f64>, scale: &[f64]) -> OrderedMatrix<'_> {
+        let (values, row_idx) = (a.val(), a.symbolic().row_idx());
+        let col_ptr = a.symbolic().col_ptr();
+        let mut next = self.pattern.col_ptr()[..a.ncols()].to_vec();
+        let mut ordered = vec![0.0; self.pattern.row_idx().len()];
+        let mut norm = 0.0f64;
+        // A's columns in order, as the pattern was made.
+        for j in 0..a.ncols() {
+            let (pj, dj) = (self.inverse[j], scale[j]);
+            for k in col_ptr[j]..col_ptr[j + 1] {
+                let i = row_idx[k];
+                if i < j {
+                    continue;
+                }
+                let pi = self.inverse[i];
+                let column = match self.upper {
+                    false => pi.min(pj),
+                    true => pi.max(pj),
+                };
+                let v = values[k] * (scale[i] * dj);
+                ordered[next[column]] = v;
+                next[column] += 1;
+                norm = norm.max(v.abs());
+            }
+        }
+        OrderedMatrix {
+            pattern: self,
+            values: ordered,
+            norm,
+        }
+    }
 }
 
-/// A matrix in a factorisation's order ([`ordered_equilibrated`]), its
-/// rows unsorted within a column.
-struct OrderedMatrix {
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+/// P (D A D) Pᵀ's values as a numeric factorisation reads them, on their
+/// [`OrderedPattern`].
+struct OrderedMatrix<'p> {
+    pattern: &'p OrderedPattern,
     values: Vec<f64>,
+    /// max |v| of the values.
+    norm: f64,
 }
 
-impl OrderedMatrix {
+impl OrderedMatrix<'_> {
     fn as_ref(&self) -> SparseColMatRef<'_, usize, f64> {
-        let n = self.col_ptr.len() - 1;
-        // Checked; rows may be unsorted within a column.
-        let symbolic = faer::sparse::SymbolicSparseColMatRef::new_unsorted_checked(
-            n,
-            n,
-            &self.col_ptr,
-            None,
-            &self.row_idx,
-        );
-        SparseColMatRef::new(symbolic, &self.values)
+        SparseColMatRef::new(self.pattern.pattern.as_ref(), &self.values)
     }
 }
 

@@ -13,18 +13,22 @@
 //! updates from the same descendants, same dense LDLᵀ with the signed
 //! regularisation), so faer's solves read the result; the descendants'
 //! updates go through a gathered product instead of faer's crate-private
-//! scatter kernel, so values agree with faer's to round-off.
+//! scatter kernel, so values agree with faer's to round-off. One-column
+//! solves run on the same split ([`solve_in_place`]), bit for bit faer's.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::{
     cholesky_in_place, cholesky_in_place_scratch, LdltError, LdltRegularization,
 };
-use faer::linalg::matmul::matmul;
-use faer::linalg::triangular_solve::solve_unit_lower_triangular_in_place;
+use faer::linalg::matmul::{matmul, matmul_with_conj};
+use faer::linalg::triangular_solve::{
+    solve_unit_lower_triangular_in_place, solve_unit_lower_triangular_in_place_with_conj,
+    solve_unit_upper_triangular_in_place_with_conj,
+};
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use faer::sparse::SparseColMatRef;
-use faer::{Accum, MatMut, MatRef, Par};
+use faer::{Accum, Conj, MatMut, MatRef, Par};
 
 /// Which supernodes each thread factors, and from which descendants every
 /// supernode takes its updates.
@@ -38,6 +42,12 @@ pub struct TreeSchedule {
     /// ascending (the order of faer's `row_major`).
     update_ptr: Vec<usize>,
     updates: Vec<usize>,
+    /// The supernode of each column.
+    supernode_of: Vec<usize>,
+    /// Per supernode of a thread, where the rows of top supernodes begin
+    /// in its pattern (they come after its own subtree's: ancestors in
+    /// postorder).
+    top_rows_from: Vec<usize>,
 }
 
 /// Subtrees are split off the top of the tree while that lowers the
@@ -134,11 +144,19 @@ impl TreeSchedule {
             updates[next[s]] = d;
             next[s] += 1;
         }));
+        let top_rows_from = (0..n_super)
+            .map(|s| {
+                let pattern = &rows[pattern_ptr[s]..pattern_ptr[s + 1]];
+                pattern.partition_point(|&r| owner[supernode_of[r]] != TOP)
+            })
+            .collect();
         Some(TreeSchedule {
             owner,
             top,
             update_ptr: counts,
             updates,
+            supernode_of,
+            top_rows_from,
         })
     }
 
@@ -535,6 +553,213 @@ impl<'a> Shape<'a> {
     }
 }
 
+/// Solves L D Lᵀ x = b in place for one column (x in the analysis'
+/// order), `values` the factor in faer's supernodal layout: faer's
+/// sequential solve, each supernode's steps the same operations on the
+/// same values, so x is faer's bit for bit. Forward, the two threads'
+/// subtrees on two threads: an update of a row of the top is kept in the
+/// thread's log and applied afterwards in supernode order (with the top
+/// supernodes' own steps), as faer's loop applies them; backward, the top
+/// first, then the subtrees on two threads (they only read the top).
+pub fn solve_in_place(
+    symbolic: &SymbolicSupernodalCholesky<usize>,
+    values: &[f64],
+    schedule: &TreeSchedule,
+    x: &mut [f64],
+) {
+    let n_super = symbolic.n_supernodes();
+    let (begin, end) = (symbolic.supernode_begin(), symbolic.supernode_end());
+    let factor = |s: usize| Supernode::of(symbolic, values, s);
+    // Forward: the subtrees, each thread on its own columns.
+    let mut logs: [Vec<f64>; 2] = Default::default();
+    {
+        let [first, second] = split_columns(x, begin, end, schedule).0;
+        let forward_bin = |mut mine: Vec<Option<&mut [f64]>>, log: &mut Vec<f64>| {
+            let mut tmp = Vec::new();
+            for s in 0..n_super {
+                let (head, ancestors) = mine.split_at_mut(s + 1);
+                let Some(x_s) = head[s].as_deref_mut() else {
+                    continue;
+                };
+                let supernode = factor(s);
+                supernode.forward(x_s, &mut tmp);
+                let split = schedule.top_rows_from[s];
+                for (&r, t) in supernode.pattern[..split].iter().zip(&tmp) {
+                    let a = schedule.supernode_of[r];
+                    let x_a = ancestors[a - s - 1]
+                        .as_deref_mut()
+                        .expect("an ancestor in the same subtree");
+                    x_a[r - begin[a]] -= t;
+                }
+                log.extend_from_slice(&tmp[split..supernode.pattern.len()]);
+                supernode.divide_by_d(x_s);
+            }
+        };
+        let [log_first, log_second] = &mut logs;
+        std::thread::scope(|scope| {
+            scope.spawn(|| forward_bin(second, log_second));
+            forward_bin(first, log_first);
+        });
+    }
+    // The top's rows in supernode order: the logged updates, the top's steps.
+    let (mut read, mut tmp) = ([0usize; 2], Vec::new());
+    for s in 0..n_super {
+        let supernode = factor(s);
+        match schedule.owner[s] {
+            TOP => {
+                let x_s = &mut x[begin[s]..end[s]];
+                supernode.forward(x_s, &mut tmp);
+                supernode.divide_by_d(x_s);
+                for (&r, t) in supernode.pattern.iter().zip(&tmp) {
+                    x[r] -= t;
+                }
+            }
+            bin => {
+                let bin = bin as usize;
+                let top_rows = &supernode.pattern[schedule.top_rows_from[s]..];
+                let logged = &logs[bin][read[bin]..read[bin] + top_rows.len()];
+                for (&r, t) in top_rows.iter().zip(logged) {
+                    x[r] -= t;
+                }
+                read[bin] += top_rows.len();
+            }
+        }
+    }
+    drop(logs);
+    // Backward: the top (its ancestors are top), then the subtrees.
+    for &s in schedule.top.iter().rev() {
+        let supernode = factor(s);
+        tmp.clear();
+        tmp.extend(supernode.pattern.iter().map(|&r| x[r]));
+        supernode.backward(&mut x[begin[s]..end[s]], &tmp);
+    }
+    let ([first, second], top) = split_columns(x, begin, end, schedule);
+    let backward_bin = |mut mine: Vec<Option<&mut [f64]>>| {
+        let mut tmp = Vec::new();
+        for s in (0..n_super).rev() {
+            let (head, ancestors) = mine.split_at_mut(s + 1);
+            let Some(x_s) = head[s].as_deref_mut() else {
+                continue;
+            };
+            let supernode = factor(s);
+            tmp.clear();
+            tmp.extend(supernode.pattern.iter().map(|&r| {
+                let a = schedule.supernode_of[r];
+                let x_a = match schedule.owner[a] {
+                    TOP => top[a],
+                    _ => ancestors[a - s - 1].as_deref(),
+                };
+                x_a.expect("an ancestor in the subtree or the top")[r - begin[a]]
+            }));
+            supernode.backward(x_s, &tmp);
+        }
+    };
+    std::thread::scope(|scope| {
+        scope.spawn(|| backward_bin(second));
+        backward_bin(first);
+    });
+}
+
+/// x's columns by supernode: each thread's (mutable), and the top's.
+#[allow(clippy::type_complexity)]
+fn split_columns<'x>(
+    x: &'x mut [f64],
+    begin: &[usize],
+    end: &[usize],
+    schedule: &TreeSchedule,
+) -> ([Vec<Option<&'x mut [f64]>>; 2], Vec<Option<&'x [f64]>>) {
+    let n_super = begin.len();
+    let none = || {
+        std::iter::repeat_with(|| None)
+            .take(n_super)
+            .collect::<Vec<_>>()
+    };
+    let (mut bins, mut top) = ([none(), none()], vec![None; n_super]);
+    let mut rest = x;
+    for s in 0..n_super {
+        let (columns, tail) = std::mem::take(&mut rest).split_at_mut(end[s] - begin[s]);
+        match schedule.owner[s] {
+            TOP => top[s] = Some(&*columns),
+            bin => bins[bin as usize][s] = Some(columns),
+        }
+        rest = tail;
+    }
+    (bins, top)
+}
+
+/// One supernode's factor block (faer's layout: the unit lower diagonal
+/// block with D on its diagonal, then the rows of its pattern).
+struct Supernode<'a> {
+    l: MatRef<'a, f64>,
+    pattern: &'a [usize],
+}
+
+impl<'a> Supernode<'a> {
+    fn of(symbolic: &'a SymbolicSupernodalCholesky<usize>, values: &'a [f64], s: usize) -> Self {
+        let shape = Shape::of(symbolic, s);
+        let value_ptr = symbolic.col_ptr_for_val();
+        Supernode {
+            l: MatRef::from_column_major_slice(
+                &values[value_ptr[s]..value_ptr[s + 1]],
+                shape.nrows,
+                shape.ncols,
+            ),
+            pattern: shape.pattern,
+        }
+    }
+
+    /// x_s ← L_s⁻¹ x_s and tmp ← L_below x_s (faer's forward step).
+    fn forward(&self, x_s: &mut [f64], tmp: &mut Vec<f64>) {
+        let ncols = self.l.ncols();
+        let (diagonal, below) = self.l.split_at_row(ncols);
+        let mut x_s = MatMut::from_column_major_slice_mut(x_s, ncols, 1);
+        solve_unit_lower_triangular_in_place_with_conj(diagonal, Conj::No, x_s.rb_mut(), Par::Seq);
+        tmp.resize(below.nrows(), 0.0);
+        let product = MatMut::from_column_major_slice_mut(&mut tmp[..], below.nrows(), 1);
+        matmul_with_conj(
+            product,
+            Accum::Replace,
+            below,
+            Conj::No,
+            x_s.rb(),
+            Conj::No,
+            1.0,
+            Par::Seq,
+        );
+    }
+
+    /// x_s ← D⁻¹ x_s, as faer multiplies by each pivot's reciprocal.
+    fn divide_by_d(&self, x_s: &mut [f64]) {
+        for (k, v) in x_s.iter_mut().enumerate() {
+            *v *= self.l[(k, k)].recip();
+        }
+    }
+
+    /// x_s ← L_s⁻ᵀ (x_s − L_belowᵀ x_pattern) (faer's backward step).
+    fn backward(&self, x_s: &mut [f64], x_pattern: &[f64]) {
+        let ncols = self.l.ncols();
+        let (diagonal, below) = self.l.split_at_row(ncols);
+        let mut x_s = MatMut::from_column_major_slice_mut(x_s, ncols, 1);
+        let gathered = MatRef::from_column_major_slice(x_pattern, below.nrows(), 1);
+        matmul_with_conj(
+            x_s.rb_mut(),
+            Accum::Add,
+            below.transpose(),
+            Conj::Yes,
+            gathered,
+            Conj::No,
+            -1.0,
+            Par::Seq,
+        );
+        solve_unit_upper_triangular_in_place_with_conj(
+            diagonal.transpose(),
+            Conj::Yes,
+            x_s,
+            Par::Seq,
+        );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -585,9 +810,9 @@ mod tests {
 
     /// Two threads on the tree give faer's supernodal factor to round-off
     /// (AMD order, signed regularisation), with every supernode in exactly
-    /// one bin or the top, both bins used.
+    /// one bin or the top, both bins used; and faer's solve bit for bit.
     #[test]
-    fn tree_factorisation_equals_faers() {
+    fn tree_factorisation_and_solve_equal_faers() {
         let (a, n_primal) = grid_saddle(60);
         let n = a.nrows();
         let symbolic = factorize_symbolic_cholesky(
@@ -610,16 +835,11 @@ mod tests {
         let tops = schedule.owner.iter().filter(|&&o| o == TOP).count();
         assert!(tops > 0 && tops == schedule.top.len());
         assert!(schedule.top.iter().all(|&s| schedule.owner[s] == TOP));
-        let signs: Vec<i8> = (0..n).map(|i| if i < n_primal { 1 } else { -1 }).collect();
-        let (ordered, signs, _) = super::super::ordered_equilibrated(
-            &symbolic,
-            a.as_ref(),
-            &vec![1.0; n],
-            &signs,
-            Par::Seq,
-        );
+        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal);
+        let ordered = pattern.equilibrated(&a, &vec![1.0; n]);
+        let signs = &pattern.signs;
         let regularization = LdltRegularization {
-            dynamic_regularization_signs: Some(&signs),
+            dynamic_regularization_signs: Some(signs),
             dynamic_regularization_delta: 1e-12,
             dynamic_regularization_epsilon: 1e-14,
         };
@@ -648,6 +868,23 @@ mod tests {
         assert!(
             worst <= 1e-13 * scale,
             "factor values differ by {worst:e} (scale {scale:e})"
+        );
+        // The two-thread solve is faer's, bit for bit, on the same factor.
+        let b: Vec<f64> = (0..n).map(|i| ((i * 7919) % 101) as f64 - 50.0).collect();
+        let mut faer_x = b.clone();
+        let mut buffer = MemBuffer::new(faer::linalg::temp_mat_scratch::<f64>(n, 1));
+        supernodal::SupernodalLdltRef::new(raw, &ours).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut faer_x, n, 1),
+            Par::Seq,
+            MemStack::new(&mut buffer),
+        );
+        let mut tree_x = b;
+        solve_in_place(raw, &ours, &schedule, &mut tree_x);
+        let differing = faer_x.iter().zip(&tree_x).filter(|(f, t)| f != t).count();
+        assert_eq!(
+            differing, 0,
+            "the solves differ in {differing} of {n} entries"
         );
     }
 }
