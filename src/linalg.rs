@@ -4,7 +4,7 @@
 
 use crate::error::{Error, Result};
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
+use faer::linalg::cholesky::ldlt::factor::{LdltError, LdltRegularization};
 use faer::linalg::solvers::Solve;
 use faer::perm::PermRef;
 use faer::sparse::linalg::amd;
@@ -13,7 +13,10 @@ use faer::sparse::linalg::cholesky::{
     SymbolicCholeskyRaw, SymmetricOrdering,
 };
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
-use faer::sparse::{FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat, Triplet};
+use faer::sparse::{
+    FaerError, SparseColMat, SparseColMatRef, SymbolicSparseColMat, SymbolicSparseColMatRef,
+    Triplet,
+};
 use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
@@ -1584,27 +1587,20 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
         }
         row_max
     };
-    // Two threads take half the entries each; the maximum of their maxima
-    // is exact, so the scaling is the same bit for bit.
-    let split = match two_threads() && values.len() >= PARALLEL_ENTRIES {
-        true => col_ptr.partition_point(|&p| p < values.len() / 2).min(n),
-        false => n,
-    };
+    // The maximum of the two halves' maxima is exact: the same scaling.
     let mut d = vec![1.0; n];
     for _ in 0..3 {
-        let row_max = match split < n {
-            true => std::thread::scope(|scope| {
-                let second = scope.spawn(|| row_maxima(&d, split..n));
-                let mut first = row_maxima(&d, 0..split);
-                let second = second.join().expect("the equilibration's second thread");
+        let row_max = in_two_halves(
+            a,
+            |columns| row_maxima(&d, columns),
+            |mut first, second| {
                 first
                     .iter_mut()
                     .zip(&second)
                     .for_each(|(a, b)| *a = a.max(*b));
                 first
-            }),
-            false => row_maxima(&d, 0..n),
-        };
+            },
+        );
         for (di, m) in d.iter_mut().zip(&row_max) {
             if *m > 0.0 && m.is_finite() {
                 *di /= m.sqrt();
@@ -1617,6 +1613,30 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
 /// Matrices with at least this many entries are checked and equilibrated
 /// on two threads when factorisations have two ([`set_threads`]).
 const PARALLEL_ENTRIES: usize = 1 << 20;
+
+/// `work` over all of `a`'s columns: on two threads (each about half the
+/// entries, the results combined) when factorisations have two and `a` is
+/// large, else at once.
+fn in_two_halves<R: Send>(
+    a: &SparseColMat<usize, f64>,
+    work: impl Fn(std::ops::Range<usize>) -> R + Sync,
+    combine: impl FnOnce(R, R) -> R,
+) -> R {
+    let (n, nnz) = (a.ncols(), a.val().len());
+    if !(two_threads() && nnz >= PARALLEL_ENTRIES) {
+        return work(0..n);
+    }
+    let split = a
+        .symbolic()
+        .col_ptr()
+        .partition_point(|&p| p < nnz / 2)
+        .min(n);
+    std::thread::scope(|scope| {
+        let second = scope.spawn(|| work(split..n));
+        let first = work(0..split);
+        combine(first, second.join().expect("the second thread"))
+    })
+}
 
 /// The LDLᵀ analysis in the ordering `solves` asks for, with its two
 /// threads' schedule when supernodal and this thread factorises on two
@@ -1634,7 +1654,7 @@ fn ldlt_analysis(
         }
         _ => None,
     };
-    let ordered = OrderedPattern::new(&symbolic, a, n_primal);
+    let ordered = OrderedPattern::new(&symbolic, a, n_primal, schedule.is_some());
     Ok(SymbolicAnalysis::Ldlt {
         analysis: LdltAnalysis {
             symbolic: Arc::new(symbolic),
@@ -1859,62 +1879,39 @@ impl RegularizedLdlt {
         } = analysis;
         let symbolic = symbolic.clone();
         let a = &*matrix;
-        let n = a.nrows();
         let scale = symmetric_equilibration(a);
         let mut values = spare_factors.take(symbolic.len_val());
-        let par = parallelism();
-        let scaled = ordered.equilibrated(a, &scale);
-        let scaled_norm = scaled.norm.max(f64::MIN_POSITIVE);
-        let regularization = LdltRegularization {
-            dynamic_regularization_signs: Some(&ordered.signs),
-            dynamic_regularization_delta: REGULARIZATION * scaled_norm,
-            dynamic_regularization_epsilon: f64::EPSILON * scaled_norm,
+        let regularization = |norm: f64| {
+            let norm = norm.max(f64::MIN_POSITIVE);
+            LdltRegularization {
+                dynamic_regularization_signs: Some(ordered.signs.as_slice()),
+                dynamic_regularization_delta: REGULARIZATION * norm,
+                dynamic_regularization_epsilon: f64::EPSILON * norm,
+            }
         };
-        let mut buffer = MemBuffer::new(match symbolic.raw() {
-            SymbolicCholeskyRaw::Simplicial(_) => {
-                simplicial::factorize_simplicial_numeric_ldlt_scratch::<usize, f64>(n)
-            }
-            SymbolicCholeskyRaw::Supernodal(raw) => {
-                supernodal::factorize_supernodal_numeric_ldlt_scratch::<usize, f64>(
-                    raw,
-                    par,
-                    Default::default(),
-                )
-            }
-        });
-        let stack = MemStack::new(&mut buffer);
+        // Two threads read A's values in place (the positions of its
+        // values exist with the schedule, when they fit 32 bits); faer
+        // reads a scaled copy in its order.
         let tree = schedule.as_ref().filter(|_| two_threads());
-        let schedule = tree.cloned();
-        let factorized = match symbolic.raw() {
-            SymbolicCholeskyRaw::Simplicial(raw) => simplicial::factorize_simplicial_numeric_ldlt(
-                &mut values,
-                scaled.as_ref(),
-                regularization,
-                raw,
-                stack,
-            )
-            .map(|_| ()),
-            SymbolicCholeskyRaw::Supernodal(raw) if tree.is_some() => tree_ldlt::factorize(
-                &mut values,
-                scaled.as_ref(),
-                &regularization,
-                raw,
-                tree.expect("matched").as_ref(),
-            )
-            .map(|_| ()),
-            SymbolicCholeskyRaw::Supernodal(raw) => supernodal::factorize_supernodal_numeric_ldlt(
-                &mut values,
-                scaled.as_ref(),
-                regularization,
-                raw,
-                par,
-                stack,
-                Default::default(),
-            )
-            .map(|_| ()),
+        let entries = tree.and_then(|_| ordered.entries(a, &scale));
+        let factorized = match (symbolic.raw(), tree, entries) {
+            (SymbolicCholeskyRaw::Supernodal(raw), Some(tree), Some(entries)) => {
+                tree_ldlt::factorize(
+                    &mut values,
+                    &entries,
+                    &regularization(entries.norm),
+                    raw,
+                    tree,
+                )
+                .map(|_| ())
+            }
+            (raw, ..) => {
+                let scaled = ordered.equilibrated(a, &scale);
+                factorize_in_faer(&mut values, &scaled, regularization(scaled.norm), raw)
+            }
         };
+        let schedule = tree.cloned();
         factorized.map_err(|e| Error::numerical(what, "LDLᵀ", format!("zero pivot ({e:?})")))?;
-        drop(scaled);
         Ok(RegularizedLdlt {
             symbolic,
             values,
@@ -2026,17 +2023,23 @@ struct OrderedPattern {
     inverse: Vec<usize>,
     /// Whether P A Pᵀ is read by its upper triangle (simplicial).
     upper: bool,
+    /// Per entry of P A Pᵀ, the position of its value in A: kept for the
+    /// two threads' factorisation, which reads A's values through it
+    /// ([`OrderedPattern::entries`]) instead of a scaled copy.
+    source: Option<Vec<u32>>,
     /// The signs of the regularisation in the order P.
     signs: Vec<i8>,
 }
 
 impl OrderedPattern {
     /// The pattern of `a` (n_primal positive signs, then negative) in the
-    /// order of `symbolic`.
+    /// order of `symbolic`, with the positions of A's values when `sources`
+    /// (and they fit 32 bits).
     fn new(
         symbolic: &SymbolicCholesky<usize>,
         a: &SparseColMat<usize, f64>,
         n_primal: usize,
+        sources: bool,
     ) -> Self {
         let n = a.nrows();
         let (forward, inverse): (Vec<usize>, Vec<usize>) = match symbolic.perm() {
@@ -2048,6 +2051,7 @@ impl OrderedPattern {
             pattern: SymbolicSparseColMat::new_checked(n, n, vec![0; n + 1], None, Vec::new()),
             inverse,
             upper,
+            source: None,
             signs: forward
                 .iter()
                 .map(|&i| if i < n_primal { 1 } else { -1 })
@@ -2060,11 +2064,17 @@ impl OrderedPattern {
         }
         let mut next = counts[..n].to_vec();
         let mut row_idx = vec![0; counts[n]];
-        ordered.for_each_entry(a, |_, (r, c)| {
+        let sources = sources && a.val().len() <= u32::MAX as usize;
+        let mut source = vec![0u32; if sources { counts[n] } else { 0 }];
+        ordered.for_each_entry(a, |k, (r, c)| {
             row_idx[next[c]] = r;
+            if sources {
+                source[next[c]] = k as u32;
+            }
             next[c] += 1;
         });
         ordered.pattern = SymbolicSparseColMat::new_unsorted_checked(n, n, counts, None, row_idx);
+        ordered.source = sources.then_some(source);
         ordered
     }
 
@@ -2092,6 +2102,28 @@ impl OrderedPattern {
                 visit(k, place);
             }
         }
+    }
+
+    /// P (D A D) Pᵀ read through the positions of A's values (None
+    /// without them): its entries are v (d_i d_j) as in
+    /// [`OrderedPattern::equilibrated`], made where they are read.
+    fn entries<'a>(
+        &'a self,
+        a: &'a SparseColMat<usize, f64>,
+        scale: &[f64],
+    ) -> Option<OrderedEntries<'a>> {
+        let source = self.source.as_deref()?;
+        let mut ordered_scale = vec![0.0; scale.len()];
+        for (&new, &d) in self.inverse.iter().zip(scale) {
+            ordered_scale[new] = d;
+        }
+        Some(OrderedEntries {
+            pattern: self.pattern.as_ref(),
+            source,
+            values: a.val(),
+            norm: equilibrated_norm(a, scale),
+            scale: ordered_scale,
+        })
     }
 
     /// P (D A D) Pᵀ's values, A of this pattern, D = diag(`scale`): each
@@ -2129,6 +2161,50 @@ impl OrderedPattern {
     }
 }
 
+/// faer's numeric LDLᵀ of `scaled` (sequential; supernodal or
+/// simplicial as analysed) into `values`.
+fn factorize_in_faer(
+    values: &mut [f64],
+    scaled: &OrderedMatrix<'_>,
+    regularization: LdltRegularization<'_, f64>,
+    symbolic: &SymbolicCholeskyRaw<usize>,
+) -> std::result::Result<(), LdltError> {
+    let (n, par) = (scaled.pattern.pattern.nrows(), parallelism());
+    let mut buffer = MemBuffer::new(match symbolic {
+        SymbolicCholeskyRaw::Simplicial(_) => {
+            simplicial::factorize_simplicial_numeric_ldlt_scratch::<usize, f64>(n)
+        }
+        SymbolicCholeskyRaw::Supernodal(raw) => {
+            supernodal::factorize_supernodal_numeric_ldlt_scratch::<usize, f64>(
+                raw,
+                par,
+                Default::default(),
+            )
+        }
+    });
+    let stack = MemStack::new(&mut buffer);
+    match symbolic {
+        SymbolicCholeskyRaw::Simplicial(raw) => simplicial::factorize_simplicial_numeric_ldlt(
+            values,
+            scaled.as_ref(),
+            regularization,
+            raw,
+            stack,
+        )
+        .map(|_| ()),
+        SymbolicCholeskyRaw::Supernodal(raw) => supernodal::factorize_supernodal_numeric_ldlt(
+            values,
+            scaled.as_ref(),
+            regularization,
+            raw,
+            par,
+            stack,
+            Default::default(),
+        )
+        .map(|_| ()),
+    }
+}
+
 /// P (D A D) Pᵀ's values as a numeric factorisation reads them, on their
 /// [`OrderedPattern`].
 struct OrderedMatrix<'p> {
@@ -2142,6 +2218,39 @@ impl OrderedMatrix<'_> {
     fn as_ref(&self) -> SparseColMatRef<'_, usize, f64> {
         SparseColMatRef::new(self.pattern.pattern.as_ref(), &self.values)
     }
+}
+
+/// P (D A D) Pᵀ without a copy ([`OrderedPattern::entries`]): entry t
+/// (row i, column j of the pattern) is values[source[t]] (scale[i]
+/// scale[j]).
+struct OrderedEntries<'a> {
+    pattern: SymbolicSparseColMatRef<'a, usize>,
+    source: &'a [u32],
+    values: &'a [f64],
+    /// D in the order P.
+    scale: Vec<f64>,
+    /// max |v| of the entries.
+    norm: f64,
+}
+
+/// max |v (d_i d_j)| over A's lower triangle, D = diag(`scale`): the
+/// largest entry of D A D, on two threads as the equilibration.
+fn equilibrated_norm(a: &SparseColMat<usize, f64>, scale: &[f64]) -> f64 {
+    let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    let largest = |columns: std::ops::Range<usize>| {
+        let mut norm = 0.0f64;
+        for j in columns {
+            let dj = scale[j];
+            for k in col_ptr[j]..col_ptr[j + 1] {
+                let i = row_idx[k];
+                if i >= j {
+                    norm = norm.max((values[k] * (scale[i] * dj)).abs());
+                }
+            }
+        }
+        norm
+    };
+    in_two_halves(a, largest, f64::max)
 }
 
 /// Solves A x = b in place with `raw_solve` (an approximate inverse), then

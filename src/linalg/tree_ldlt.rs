@@ -16,6 +16,7 @@
 //! scatter kernel, so values agree with faer's to round-off. One-column
 //! solves run on the same split ([`solve_in_place`]), bit for bit faer's.
 
+use super::OrderedEntries;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::{
     cholesky_in_place, cholesky_in_place_scratch, LdltError, LdltRegularization,
@@ -27,7 +28,6 @@ use faer::linalg::triangular_solve::{
 };
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
-use faer::sparse::SparseColMatRef;
 use faer::{Accum, Conj, MatMut, MatRef, Par};
 
 /// Which supernodes each thread factors, and from which descendants every
@@ -184,7 +184,7 @@ fn balanced(frontier: &[usize], work: &[f64]) -> (f64, Vec<usize>) {
 struct Inputs<'a> {
     symbolic: &'a SymbolicSupernodalCholesky<usize>,
     schedule: &'a TreeSchedule,
-    a_lower: SparseColMatRef<'a, usize, f64>,
+    a_lower: &'a OrderedEntries<'a>,
     regularization: &'a LdltRegularization<'a, f64>,
 }
 
@@ -234,7 +234,7 @@ impl Workspace {
 /// regularised pivots.
 pub fn factorize(
     values: &mut [f64],
-    a_lower: SparseColMatRef<'_, usize, f64>,
+    a_lower: &OrderedEntries<'_>,
     regularization: &LdltRegularization<'_, f64>,
     symbolic: &SymbolicSupernodalCholesky<usize>,
     schedule: &TreeSchedule,
@@ -423,13 +423,17 @@ impl<'a> Shape<'a> {
     /// A's lower-triangle entries of the supernode's columns.
     fn add_columns_of_a(
         &self,
-        a: SparseColMatRef<'_, usize, f64>,
+        a: &OrderedEntries<'_>,
         global_to_local: &[usize],
         mut ls: MatMut<'_, f64>,
     ) {
+        let (col_ptr, row_idx) = (a.pattern.col_ptr(), a.pattern.row_idx());
         for j in self.start..self.end {
-            for (i, v) in a.row_idx_of_col(j).zip(a.val_of_col(j)) {
+            let dj = a.scale[j];
+            for t in col_ptr[j]..col_ptr[j + 1] {
+                let i = row_idx[t];
                 if i >= j {
+                    let v = a.values[a.source[t] as usize] * (a.scale[i] * dj);
                     ls[(self.local_row(i, global_to_local), j - self.start)] += v;
                 }
             }
@@ -835,8 +839,9 @@ mod tests {
         let tops = schedule.owner.iter().filter(|&&o| o == TOP).count();
         assert!(tops > 0 && tops == schedule.top.len());
         assert!(schedule.top.iter().all(|&s| schedule.owner[s] == TOP));
-        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal);
+        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let ordered = pattern.equilibrated(&a, &vec![1.0; n]);
+        let entries = pattern.entries(&a, &vec![1.0; n]).expect("positions kept");
         let signs = &pattern.signs;
         let regularization = LdltRegularization {
             dynamic_regularization_signs: Some(signs),
@@ -859,7 +864,7 @@ mod tests {
         )
         .unwrap();
         let mut ours = vec![f64::NAN; raw.len_val()];
-        factorize(&mut ours, ordered.as_ref(), &regularization, raw, &schedule).unwrap();
+        factorize(&mut ours, &entries, &regularization, raw, &schedule).unwrap();
         let scale = faers.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let worst = faers
             .iter()
