@@ -1610,8 +1610,9 @@ fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
     d
 }
 
-/// Matrices with at least this many entries are checked and equilibrated
-/// on two threads when factorisations have two ([`set_threads`]).
+/// Matrices (and factors) with at least this many entries are checked,
+/// equilibrated and solved with on two threads when factorisations have
+/// two ([`set_threads`]).
 const PARALLEL_ENTRIES: usize = 1 << 20;
 
 /// `work` over all of `a`'s columns: on two threads (each about half the
@@ -1952,8 +1953,11 @@ impl RegularizedLdlt {
             }
         };
         scale_all(b);
+        // Two threads pay from a factor of about a million entries on (the
+        // shell at n = 16: Uzawa's iteration 0.33 → 0.49 ms with them).
+        let two = k == 1 && self.values.len() >= PARALLEL_ENTRIES;
         match (&self.schedule, self.symbolic.raw(), self.symbolic.perm()) {
-            (Some(schedule), SymbolicCholeskyRaw::Supernodal(raw), Some(perm)) if k == 1 => {
+            (Some(schedule), SymbolicCholeskyRaw::Supernodal(raw), Some(perm)) if two => {
                 // faer's solve permutes the same way around its own.
                 let (forward, inverse) = perm.arrays();
                 let mut x: Vec<f64> = forward.iter().map(|&i| b[i]).collect();
