@@ -2116,47 +2116,38 @@ impl OrderedPattern {
         a: &'a SparseColMat<usize, f64>,
         scale: &[f64],
     ) -> Option<OrderedEntries<'a>> {
-        let source = self.source.as_deref()?;
-        let mut ordered_scale = vec![0.0; scale.len()];
-        for (&new, &d) in self.inverse.iter().zip(scale) {
-            ordered_scale[new] = d;
-        }
         Some(OrderedEntries {
             pattern: self.pattern.as_ref(),
-            source,
+            source: self.source.as_deref()?,
             values: a.val(),
             norm: equilibrated_norm(a, scale),
-            scale: ordered_scale,
+            scale: self.in_order(scale),
         })
+    }
+
+    /// `scale` in the order P.
+    fn in_order(&self, scale: &[f64]) -> Vec<f64> {
+        let mut ordered = vec![0.0; scale.len()];
+        for (&new, &d) in self.inverse.iter().zip(scale) {
+            ordered[new] = d;
+        }
+        ordered
     }
 
     /// P (D A D) Pᵀ's values, A of this pattern, D = diag(`scale`): each
     /// entry v (d_i d_j), as faer's permutation and a scaling gave them.
     fn equilibrated(&self, a: &SparseColMat<usize, f64>, scale: &[f64]) -> OrderedMatrix<'_> {
-        let (values, row_idx) = (a.val(), a.symbolic().row_idx());
-        let col_ptr = a.symbolic().col_ptr();
+        let (values, scale) = (a.val(), self.in_order(scale));
         let mut next = self.pattern.col_ptr()[..a.ncols()].to_vec();
         let mut ordered = vec![0.0; self.pattern.row_idx().len()];
         let mut norm = 0.0f64;
         // A's columns in order, as the pattern was made.
-        for j in 0..a.ncols() {
-            let (pj, dj) = (self.inverse[j], scale[j]);
-            for k in col_ptr[j]..col_ptr[j + 1] {
-                let i = row_idx[k];
-                if i < j {
-                    continue;
-                }
-                let pi = self.inverse[i];
-                let column = match self.upper {
-                    false => pi.min(pj),
-                    true => pi.max(pj),
-                };
-                let v = values[k] * (scale[i] * dj);
-                ordered[next[column]] = v;
-                next[column] += 1;
-                norm = norm.max(v.abs());
-            }
-        }
+        self.for_each_entry(a, |k, (r, c)| {
+            let v = values[k] * (scale[r] * scale[c]);
+            ordered[next[c]] = v;
+            next[c] += 1;
+            norm = norm.max(v.abs());
+        });
         OrderedMatrix {
             pattern: self,
             values: ordered,
