@@ -2384,6 +2384,36 @@ pub fn norm2(x: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
+    /// The largest |entry| wherever it lies (either half of the two
+    /// threads' split, the lanes' remainder), with one thread or two; a
+    /// NaN or ±∞ is an error naming its entry.
+    #[test]
+    fn checked_norm_finds_the_largest_entry_and_names_a_non_finite_one() {
+        let n = PARALLEL_ENTRIES + 13;
+        let diagonal = |values: Vec<f64>| {
+            let pattern =
+                SymbolicSparseColMat::new_checked(n, n, (0..=n).collect(), None, (0..n).collect());
+            SparseColMat::new(pattern, values)
+        };
+        for threads in [1, 2] {
+            set_threads(threads);
+            for (k, v) in [(0, -7.5), (n / 2 + 1, 9.0), (n - 1, -11.0)] {
+                let mut values = vec![1.0; n];
+                values[k] = v;
+                let norm = checked_norm(&diagonal(values), "test").unwrap();
+                assert_eq!(norm, v.abs(), "entry {k} ({threads} threads)");
+            }
+            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                let mut values = vec![1.0; n];
+                values[n - 3] = bad;
+                let e = checked_norm(&diagonal(values), "test").unwrap_err();
+                let expected = format!("entry {} is not finite", n - 3);
+                assert!(e.to_string().contains(&expected), "{bad}: {e}");
+            }
+        }
+        set_threads(1);
+    }
+
     /// A 4×4 symmetric matrix: (whole, its lower triangle).
     fn symmetric() -> (SparseColMat<usize, f64>, SparseColMat<usize, f64>) {
         let lower = [
