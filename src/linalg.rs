@@ -1109,19 +1109,17 @@ fn checked_norm(a: &SparseColMat<usize, f64>, what: &str) -> Result<f64> {
         }
         (norm_inf(&norm), finite.iter().all(|&ok| ok))
     };
-    let values = a.val();
-    let (norm, finite) = match two_threads() && values.len() >= PARALLEL_ENTRIES {
-        true => {
-            let (head, tail) = values.split_at(values.len() / 2);
-            std::thread::scope(|scope| {
-                let tail = scope.spawn(|| part(tail));
-                let (n1, f1) = part(head);
-                let (n2, f2) = tail.join().expect("the entry check's second thread");
-                (n1.max(n2), f1 & f2)
-            })
-        }
-        false => part(values),
+    let (values, col_ptr, n) = (a.val(), a.symbolic().col_ptr(), a.ncols());
+    // The values of a range of columns; the last range to the end of them.
+    let of_columns = |columns: std::ops::Range<usize>| {
+        let end = if columns.end == n {
+            values.len()
+        } else {
+            col_ptr[columns.end]
+        };
+        part(&values[col_ptr[columns.start]..end])
     };
+    let (norm, finite) = in_two_halves(a, of_columns, |(n1, f1), (n2, f2)| (n1.max(n2), f1 & f2));
     match finite {
         true => Ok(norm),
         false => Err(Error::numerical(
@@ -1172,7 +1170,6 @@ impl DirectFactorizer {
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let a: &SparseColMat<usize, f64> = &matrix;
         let norm = checked_norm(a, what)?;
-        parallelism();
         let storage = self.storage;
         let f = match &self.symbolic {
             SymbolicAnalysis::Lu(symbolic) => Factorization::Lu(Box::new(
