@@ -100,9 +100,18 @@ enum Storage {
 impl Storage {
     /// A matrix of a symmetric kind without an entry above the diagonal is
     /// its lower triangle; anything else is whole (a general matrix always).
+    /// Read from each column's first row: rows are sorted within a column
+    /// (faer's checked constructors and its triplet assembly sort them),
+    /// so one look per column serves instead of a pass over every entry
+    /// (each product with the problem's A asks).
     fn of(a: SparseColMatRef<'_, usize, f64>, kind: MatrixKind) -> Self {
+        let symbolic = a.symbolic();
         let lower = kind != MatrixKind::General
-            && (0..a.ncols()).all(|j| a.symbolic().row_idx_of_col(j).all(|i| i >= j));
+            && (0..a.ncols()).all(|j| symbolic.row_idx_of_col(j).next().is_none_or(|i| i >= j));
+        debug_assert!(
+            !lower || (0..a.ncols()).all(|j| symbolic.row_idx_of_col(j).all(|i| i >= j)),
+            "row indices sorted within each column"
+        );
         match lower {
             true => Storage::LowerTriangle,
             false => Storage::Whole,
@@ -180,29 +189,46 @@ impl RowIndex for u32 {
 
 /// y = A x for a symmetric A given by its lower triangle (CSC): each entry
 /// below the diagonal is read once, for both of its places; entries above
-/// the diagonal (there are none in this storage) would be ignored.
-fn lower_product<R: RowIndex>(
+/// the diagonal (there are none in this storage) would be ignored. A large
+/// matrix on two threads ([`in_column_halves`]): the columns from j on
+/// reach rows ≥ j only, so the second half sums into y[split..] alone,
+/// added to the first half's y at the end (one sum per entry more than
+/// in order: y agrees with the one-thread product to round-off).
+fn lower_product<R: RowIndex + Sync>(
     col_ptr: &[usize],
     rows: &[R],
     values: &[f64],
     x: &[f64],
 ) -> Vec<f64> {
-    let mut y = vec![0.0; x.len()];
-    for (j, &xj) in x.iter().enumerate() {
-        let range = col_ptr[j]..col_ptr[j + 1];
-        let mut upper = 0.0;
-        for (&i, &v) in rows[range.clone()].iter().zip(&values[range]) {
-            let i = i.get();
-            if i > j {
-                y[i] += v * xj;
-                upper += v * x[i];
-            } else if i == j {
-                upper += v * xj;
+    let n = x.len();
+    // y[columns.start..] of the columns `columns`.
+    let part = |columns: std::ops::Range<usize>| {
+        let from = columns.start;
+        let mut y = vec![0.0; n - from];
+        for j in columns {
+            let (range, xj) = (col_ptr[j]..col_ptr[j + 1], x[j]);
+            let mut upper = 0.0;
+            for (&i, &v) in rows[range.clone()].iter().zip(&values[range]) {
+                let i = i.get();
+                if i > j {
+                    y[i - from] += v * xj;
+                    upper += v * x[i];
+                } else if i == j {
+                    upper += v * xj;
+                }
             }
+            y[j - from] += upper;
         }
-        y[j] += upper;
-    }
-    y
+        y
+    };
+    in_column_halves(&col_ptr[..=n], part, |mut first, second| {
+        let from = n - second.len();
+        first[from..]
+            .iter_mut()
+            .zip(&second)
+            .for_each(|(a, b)| *a += b);
+        first
+    })
 }
 
 /// What the matrix is known to be; picks the factorisation.
@@ -1620,15 +1646,22 @@ fn in_two_halves<R: Send>(
     work: impl Fn(std::ops::Range<usize>) -> R + Sync,
     combine: impl FnOnce(R, R) -> R,
 ) -> R {
-    let (n, nnz) = (a.ncols(), a.val().len());
+    in_column_halves(a.symbolic().col_ptr(), work, combine)
+}
+
+/// [`in_two_halves`] for the columns of a compressed pattern given by its
+/// column pointers (`col_ptr[n]` = its number of entries).
+fn in_column_halves<R: Send>(
+    col_ptr: &[usize],
+    work: impl Fn(std::ops::Range<usize>) -> R + Sync,
+    combine: impl FnOnce(R, R) -> R,
+) -> R {
+    let n = col_ptr.len() - 1;
+    let nnz = col_ptr[n];
     if !(two_threads() && nnz >= PARALLEL_ENTRIES) {
         return work(0..n);
     }
-    let split = a
-        .symbolic()
-        .col_ptr()
-        .partition_point(|&p| p < nnz / 2)
-        .min(n);
+    let split = col_ptr.partition_point(|&p| p < nnz / 2).min(n);
     std::thread::scope(|scope| {
         let second = scope.spawn(|| work(split..n));
         let first = work(0..split);
@@ -2380,6 +2413,121 @@ pub fn norm2(x: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A symmetric matrix given by its lower triangle multiplies as the
+    /// whole matrix does, with one thread or two (the second half's sums
+    /// added at the end): to round-off, in both halves of the split.
+    #[test]
+    fn a_lower_triangle_multiplies_on_two_threads() {
+        let (n, band) = (200_000, 6);
+        let value = |i: usize, j: usize| 1.0 + ((i * 31 + j * 17) % 97) as f64 / 97.0;
+        let mut lower = Vec::new();
+        let mut whole = Vec::new();
+        for j in 0..n {
+            for i in j..(j + band).min(n) {
+                let v = if i == j {
+                    2.0 * band as f64
+                } else {
+                    -value(i, j)
+                };
+                lower.push(Triplet::new(i, j, v));
+                whole.push(Triplet::new(i, j, v));
+                if i != j {
+                    whole.push(Triplet::new(j, i, v));
+                }
+            }
+        }
+        let lower = SparseColMat::try_new_from_triplets(n, n, &lower).unwrap();
+        let whole = SparseColMat::try_new_from_triplets(n, n, &whole).unwrap();
+        assert!(lower.val().len() >= PARALLEL_ENTRIES);
+        let kind = MatrixKind::SymmetricPositiveDefinite;
+        assert_eq!(Storage::of(lower.as_ref(), kind), Storage::LowerTriangle);
+        let x: Vec<f64> = (0..n).map(|i| ((i * 7919) % 113) as f64 - 56.0).collect();
+        let expected = mat_vec(&whole, &x);
+        let scale = norm_inf(&expected);
+        for threads in [1, 2] {
+            set_threads(threads);
+            let y = product(&lower, kind, &x);
+            let worst = y
+                .iter()
+                .zip(&expected)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                worst <= 1e-14 * scale,
+                "{threads} threads: differs by {worst:e} (scale {scale:e})"
+            );
+        }
+        set_threads(1);
+    }
+
+    /// The interior unknowns recovered after a condensed solve are the
+    /// same numbers with one thread or two (each group's sums unchanged).
+    #[test]
+    fn interior_unknowns_recover_alike_on_two_threads() {
+        // Groups of 2 interior unknowns, each coupled to 8 consecutive
+        // remaining ones (overlapping by 4): Σ p q ≥ 2²⁰ coupling entries.
+        let groups = (PARALLEL_ENTRIES / 16) + 7;
+        let n_r = 4 * groups + 4;
+        let n = n_r + 2 * groups;
+        let mut lower = Vec::new();
+        for r in 0..n_r {
+            lower.push(Triplet::new(r, r, 40.0));
+        }
+        for g in 0..groups {
+            let (u, w) = (n_r + 2 * g, n_r + 2 * g + 1);
+            lower.push(Triplet::new(u, u, 4.0 + (g % 3) as f64));
+            lower.push(Triplet::new(w, u, 1.0));
+            lower.push(Triplet::new(w, w, 3.0));
+            for k in 0..8 {
+                let r = 4 * g + k;
+                lower.push(Triplet::new(u, r, 0.1 * ((g + k) % 5 + 1) as f64));
+                lower.push(Triplet::new(w, r, -0.05 * ((g * k) % 7 + 1) as f64));
+            }
+        }
+        let a = SparseColMat::try_new_from_triplets(n, n, &lower).unwrap();
+        let interior =
+            InteriorGroups::from_groups((0..groups).map(|g| vec![n_r + 2 * g, n_r + 2 * g + 1]));
+        let kind = MatrixKind::SymmetricPositiveDefinite;
+        let (plan, s) = CondensationPlan::new(&a, &interior, kind, "test").unwrap();
+        let mut s_values = s.val().to_vec();
+        let local = plan.condense_into(&a, &mut s_values, "test").unwrap();
+        let b: Vec<f64> = (0..n).map(|i| ((i * 7919) % 101) as f64 - 50.0).collect();
+        let x_r: Vec<f64> = (0..n_r)
+            .map(|i| ((i * 104_729) % 89) as f64 / 89.0)
+            .collect();
+        let recovered = |threads: usize| {
+            set_threads(threads);
+            let mut x = b.clone();
+            plan.recover(&local, &x_r, &mut x, false);
+            x
+        };
+        let (one, two) = (recovered(1), recovered(2));
+        set_threads(1);
+        assert_eq!(&one[..n_r], &x_r[..]);
+        let differing = one.iter().zip(&two).filter(|(p, q)| p != q).count();
+        assert_eq!(differing, 0, "{differing} of {n} unknowns differ");
+        // x_I = A_II⁻¹ (b_I − A_IR x_R), checked on the last group.
+        let g = groups - 1;
+        let (u, w) = (n_r + 2 * g, n_r + 2 * g + 1);
+        let (a_uu, a_ww) = (4.0 + (g % 3) as f64, 3.0);
+        let rhs = |row: usize, coupling: &dyn Fn(usize) -> f64| {
+            b[row] - (0..8).map(|k| coupling(k) * x_r[4 * g + k]).sum::<f64>()
+        };
+        let r_u = rhs(u, &|k| 0.1 * ((g + k) % 5 + 1) as f64);
+        let r_w = rhs(w, &|k| -0.05 * ((g * k) % 7 + 1) as f64);
+        let det = a_uu * a_ww - 1.0;
+        let (x_u, x_w) = ((a_ww * r_u - r_w) / det, (a_uu * r_w - r_u) / det);
+        assert!(
+            (one[u] - x_u).abs() <= 1e-12 * x_u.abs().max(1.0),
+            "{} vs {x_u}",
+            one[u]
+        );
+        assert!(
+            (one[w] - x_w).abs() <= 1e-12 * x_w.abs().max(1.0),
+            "{} vs {x_w}",
+            one[w]
+        );
+    }
 
     /// The largest |entry| wherever it lies (either half of the two
     /// threads' split, the lanes' remainder), with one thread or two; a

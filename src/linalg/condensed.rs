@@ -22,7 +22,7 @@
 use crate::error::{Error, Result};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 
-use super::MatrixKind;
+use super::{in_column_halves, MatrixKind};
 
 /// The interior unknowns of a problem, one group per element (CSR): group
 /// g is `indices[offsets[g]..offsets[g + 1]]`. A group's unknowns may
@@ -540,33 +540,50 @@ impl CondensationPlan {
 
     /// x from x_R (the solution of S, or Sᵀ) and the original b:
     /// x_I = A_II⁻¹ b_I − W x_R (transposed: A_II⁻ᵀ b_I − Vᵀ x_R), into b.
+    /// The groups are independent (each reads its own b_I and x_R): many
+    /// are recovered on two threads ([`in_column_halves`], halves of about
+    /// equal coupling entries), each value the same sum as on one.
     pub(super) fn recover(&self, f: &LocalFactors, x_r: &[f64], b: &mut [f64], transpose: bool) {
         let v = f.transposed_coupling.as_ref().filter(|_| transpose);
-        let (mut b_i, mut x_b) = ([0.0; MAX_INLINE], Vec::new());
-        for g in 0..self.groups.len() {
-            let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
-            let (p, q) = (interior.len(), boundary.len());
-            let inv = &f.inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
-            let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
-            let b_i = gather(interior, b, &mut b_i);
-            x_b.clear();
-            x_b.extend(boundary.iter().map(|&r| x_r[r]));
-            for (i, &u) in interior.iter().enumerate() {
-                let (local, coupled) = match (transpose, v) {
-                    (false, _) => (
-                        dot(&inv[i * p..(i + 1) * p], b_i),
-                        dot(&f.coupling[range.clone()][i * q..(i + 1) * q], &x_b),
-                    ),
-                    (true, v) => (
-                        (0..p).map(|l| inv[l * p + i] * b_i[l]).sum(),
-                        match v {
-                            Some(v) => (0..q).map(|r| v[range.start + r * p + i] * x_b[r]).sum(),
-                            None => dot(&f.coupling[range.clone()][i * q..(i + 1) * q], &x_b),
-                        },
-                    ),
-                };
-                b[u] = local - coupled;
+        let b_read: &[f64] = b;
+        // x_I of the groups `groups`, in their order.
+        let interior_values = |groups: std::ops::Range<usize>| {
+            let (mut b_i, mut x_b, mut out) = ([0.0; MAX_INLINE], Vec::new(), Vec::new());
+            for g in groups {
+                let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
+                let (p, q) = (interior.len(), boundary.len());
+                let inv = &f.inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
+                let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
+                let b_i = gather(interior, b_read, &mut b_i);
+                x_b.clear();
+                x_b.extend(boundary.iter().map(|&r| x_r[r]));
+                for i in 0..p {
+                    let (local, coupled) = match (transpose, v) {
+                        (false, _) => (
+                            dot(&inv[i * p..(i + 1) * p], b_i),
+                            dot(&f.coupling[range.clone()][i * q..(i + 1) * q], &x_b),
+                        ),
+                        (true, v) => (
+                            (0..p).map(|l| inv[l * p + i] * b_i[l]).sum(),
+                            match v {
+                                Some(v) => {
+                                    (0..q).map(|r| v[range.start + r * p + i] * x_b[r]).sum()
+                                }
+                                None => dot(&f.coupling[range.clone()][i * q..(i + 1) * q], &x_b),
+                            },
+                        ),
+                    };
+                    out.push(local - coupled);
+                }
             }
+            out
+        };
+        let values = in_column_halves(&self.coupling_offsets, interior_values, |mut a, b| {
+            a.extend(b);
+            a
+        });
+        for (&u, x) in self.groups.indices.iter().zip(values) {
+            b[u] = x;
         }
         for (&i, &x) in self.remaining.iter().zip(x_r) {
             b[i] = x;
