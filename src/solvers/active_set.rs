@@ -78,7 +78,7 @@
 //! nearly exact: one to four steps. After the first step only the
 //! multiplier diagonal changes: the bubbles' eliminations are kept and
 //! reused, S updated on that diagonal alone (`Changed::Declared`). Measured on the thesis shell (tol
-//! 1e-10; 1e-8 at n ≥ 256): 8, 13, 14, 16, 17, 16 Newton solves at n = 16,
+//! 1e-10; 1e-8 at n ≥ 256): 9, 11, 13, 15, 16, 16 Newton solves at n = 16,
 //! 32, 64, 128, 256, 512 against the depth bisection's 7, 10, 13, 20, 38,
 //! 61 — the interior-point count does not grow with n.
 //!
