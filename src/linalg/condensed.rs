@@ -546,9 +546,11 @@ impl CondensationPlan {
     pub(super) fn recover(&self, f: &LocalFactors, x_r: &[f64], b: &mut [f64], transpose: bool) {
         let v = f.transposed_coupling.as_ref().filter(|_| transpose);
         let b_read: &[f64] = b;
-        // x_I of the groups `groups`, in their order.
+        // x_I of the groups `groups`, in their order (one block per half).
         let interior_values = |groups: std::ops::Range<usize>| {
-            let (mut b_i, mut x_b, mut out) = ([0.0; MAX_INLINE], Vec::new(), Vec::new());
+            let offsets = &self.groups.offsets;
+            let mut out = Vec::with_capacity(offsets[groups.end] - offsets[groups.start]);
+            let (mut b_i, mut x_b) = ([0.0; MAX_INLINE], Vec::new());
             for g in groups {
                 let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
                 let (p, q) = (interior.len(), boundary.len());
@@ -576,13 +578,13 @@ impl CondensationPlan {
                     out.push(local - coupled);
                 }
             }
-            out
+            vec![out]
         };
-        let values = in_column_halves(&self.coupling_offsets, interior_values, |mut a, b| {
+        let blocks = in_column_halves(&self.coupling_offsets, interior_values, |mut a, b| {
             a.extend(b);
             a
         });
-        for (&u, x) in self.groups.indices.iter().zip(values) {
+        for (&u, &x) in self.groups.indices.iter().zip(blocks.iter().flatten()) {
             b[u] = x;
         }
         for (&i, &x) in self.remaining.iter().zip(x_r) {
