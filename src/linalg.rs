@@ -2486,11 +2486,7 @@ mod tests {
         let scale = norm_inf(&expected);
         for threads in [1, 2] {
             set_threads(threads);
-            let y = product(&lower, kind, &x);
-            let worst = y
-                .iter()
-                .zip(&expected)
-                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            let worst = norm_inf(&difference(&expected, &product(&lower, kind, &x)));
             assert!(
                 worst <= 1e-14 * scale,
                 "{threads} threads: differs by {worst:e} (scale {scale:e})"
@@ -2508,19 +2504,24 @@ mod tests {
         let groups = (PARALLEL_ENTRIES / 16) + 7;
         let n_r = 4 * groups + 4;
         let n = n_r + 2 * groups;
+        // Group g: unknowns u, w; A_II = [[a_uu(g), 1], [1, 3]]; row u
+        // (w) couples to remaining unknown 4g + k by coupling_u (_w).
+        let a_uu = |g: usize| 4.0 + (g % 3) as f64;
+        let coupling_u = |g: usize, k: usize| 0.1 * ((g + k) % 5 + 1) as f64;
+        let coupling_w = |g: usize, k: usize| -0.05 * ((g * k) % 7 + 1) as f64;
         let mut lower = Vec::new();
         for r in 0..n_r {
             lower.push(Triplet::new(r, r, 40.0));
         }
         for g in 0..groups {
             let (u, w) = (n_r + 2 * g, n_r + 2 * g + 1);
-            lower.push(Triplet::new(u, u, 4.0 + (g % 3) as f64));
+            lower.push(Triplet::new(u, u, a_uu(g)));
             lower.push(Triplet::new(w, u, 1.0));
             lower.push(Triplet::new(w, w, 3.0));
             for k in 0..8 {
                 let r = 4 * g + k;
-                lower.push(Triplet::new(u, r, 0.1 * ((g + k) % 5 + 1) as f64));
-                lower.push(Triplet::new(w, r, -0.05 * ((g * k) % 7 + 1) as f64));
+                lower.push(Triplet::new(u, r, coupling_u(g, k)));
+                lower.push(Triplet::new(w, r, coupling_w(g, k)));
             }
         }
         let a = SparseColMat::try_new_from_triplets(n, n, &lower).unwrap();
@@ -2548,12 +2549,11 @@ mod tests {
         // x_I = A_II⁻¹ (b_I − A_IR x_R), checked on the last group.
         let g = groups - 1;
         let (u, w) = (n_r + 2 * g, n_r + 2 * g + 1);
-        let (a_uu, a_ww) = (4.0 + (g % 3) as f64, 3.0);
-        let rhs = |row: usize, coupling: &dyn Fn(usize) -> f64| {
-            b[row] - (0..8).map(|k| coupling(k) * x_r[4 * g + k]).sum::<f64>()
+        let (a_uu, a_ww) = (a_uu(g), 3.0);
+        let rhs = |row: usize, coupling: &dyn Fn(usize, usize) -> f64| {
+            b[row] - (0..8).map(|k| coupling(g, k) * x_r[4 * g + k]).sum::<f64>()
         };
-        let r_u = rhs(u, &|k| 0.1 * ((g + k) % 5 + 1) as f64);
-        let r_w = rhs(w, &|k| -0.05 * ((g * k) % 7 + 1) as f64);
+        let (r_u, r_w) = (rhs(u, &coupling_u), rhs(w, &coupling_w));
         let det = a_uu * a_ww - 1.0;
         let (x_u, x_w) = ((a_ww * r_u - r_w) / det, (a_uu * r_w - r_u) / det);
         assert!(

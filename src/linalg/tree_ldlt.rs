@@ -899,11 +899,8 @@ mod tests {
         .unwrap();
         let mut ours = vec![f64::NAN; raw.len_val()];
         factorize(&mut ours, &entries, &regularization, raw, &schedule).unwrap();
-        let scale = faers.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let worst = faers
-            .iter()
-            .zip(&ours)
-            .fold(0.0f64, |m, (f, o)| m.max((f - o).abs()));
+        let scale = super::super::norm_inf(&faers);
+        let worst = super::super::norm_inf(&super::super::difference(&faers, &ours));
         assert!(
             worst <= 1e-13 * scale,
             "factor values differ by {worst:e} (scale {scale:e})"
