@@ -9,22 +9,35 @@
 //! 𝒜_k = {i : λ_i − c_i ḡ_i > 0} of the previous iterate, step k solves
 //!
 //! ```text
-//!     [ A      C_𝒜ᵀ S ] [x]   [F  ]     active i:   s_i (C x)_i = s_i g_i
-//!     [ S C_𝒜   −D_ℐ  ] [μ] = [ĝ  ]     inactive i: −d μ_i = 0,
+//!     [ A     Cᵀ S ] [x]   [F  ]     active i:   s_i (C x)_i = s_i g_i
+//!     [ S C   −D   ] [μ] = [ĝ  ]     inactive i: s_i (C x)_i − d_off μ_i = 0,
 //! ```
 //!
-//! λ = −S μ, with S = diag(s_i) a row (and multiplier) scaling that gives
-//! the constraint rows and multiplier columns the magnitude of A's entries
-//! (s_i = max|A| / max_j |C_ij|, d = max|A|). The matrix is symmetric (the
-//! multiplier column of an inactive constraint is switched off with its
-//! row) and quasi-definite in sign (multipliers, ψ's included, negative),
-//! so it is factorised by the signed-regularised LDLᵀ when A is symmetric
-//! ([`MatrixKind::SymmetricSaddle`]), by LU otherwise. It always holds all
-//! of C with explicit zeros for the entries the current active set switches
-//! off, so its pattern is fixed: the symbolic analysis is done once and each
-//! step is a numeric refactorisation only ([`ReusableFactorization`]),
-//! checked on the Newton solve itself (its residual), which the LDLᵀ refines
-//! against the true matrix (LU: `refinement_steps` more).
+//! λ = −S μ on 𝒜 (0 off it), with S = diag(s_i) a row (and multiplier)
+//! scaling that gives the constraint rows and multiplier columns the
+//! magnitude of A's entries (s_i = max|A| / max_j |C_ij|), and D = diag(0 on
+//! 𝒜, d_off off it). An inactive constraint is switched off by its diagonal
+//! alone: d_off = max|A| / ε² (ε the machine epsilon) leaves it the
+//! multiplier μ_i = s_i (C x)_i / d_off, whose force on x, s_i² C_iᵀ C_i x /
+//! d_off, is ε² max|A| |C_i x|. (ε is not enough: the thin shell's F is far
+//! below max|A| ‖x‖, and max|A|/ε moved its stationarity at n = 64 from
+//! 4.3e-11 to 2.8e-10; with ε² it is 4.3e-11 again, and at n = 128 the
+//! active set is the same, u within 1.5e-12 and λ within 1e-10 relative
+//! of the zeroed rows' solution.) So every
+//! step's matrix has the same entries off the multiplier diagonal (the
+//! interior-point steps' too, whose diagonal is −s_i² t_i/λ_i): the
+//! element bubbles, which the P0 constraints touch, are eliminated once
+//! for the whole solve and each factorisation updates S on that diagonal
+//! ([`Changed::Declared`]). Measured on the thesis shell at n = 128: a step
+//! with a new active set took 0.47 s when the bubbles were eliminated
+//! anew, 0.34 s now (an interior-point step: 0.35 s). The matrix is
+//! symmetric and quasi-definite in sign (multipliers, ψ's included,
+//! negative), so it is factorised by the signed-regularised LDLᵀ when A is
+//! symmetric ([`MatrixKind::SymmetricSaddle`]), by LU otherwise. Its pattern
+//! is fixed: the symbolic analysis is done once and each step is a numeric
+//! refactorisation only ([`ReusableFactorization`]), checked on the Newton
+//! solve itself (its residual), which the LDLᵀ refines against the true
+//! matrix (LU: `refinement_steps` more).
 //!
 //! **The constant c.** With an exact Newton step the active set after the
 //! first step does not depend on c (λ_i = 0 off the set and ḡ_i = 0 on it).
@@ -75,10 +88,9 @@
 //! multiplier scale. When the relative KKT measure of the iterate is below
 //! `handover` and the set the PDAS rule predicts there (λ_i − c_i ḡ_i > 0)
 //! changed by at most 5 % in the last step, PDAS continues from that set,
-//! nearly exact: one to four steps. After the first step only the
-//! multiplier diagonal changes: the bubbles' eliminations are kept and
-//! reused, S updated on that diagonal alone (`Changed::Declared`). Measured on the thesis shell (tol
-//! 1e-10; 1e-8 at n ≥ 256): 9, 11, 13, 15, 16, 16 Newton solves at n = 16,
+//! nearly exact: one to four steps. Like every step, an interior-point
+//! step changes the multiplier diagonal only (see above). Measured on the
+//! thesis shell (tol 1e-10; 1e-8 at n ≥ 256): 9, 11, 13, 15, 16, 16 Newton solves at n = 16,
 //! 32, 64, 128, 256, 512 against the depth bisection's 7, 10, 13, 20, 38,
 //! 61 — the interior-point count does not grow with n.
 //!
@@ -170,21 +182,18 @@ impl ColdStart {
     };
 }
 
-/// The Newton matrix with its fixed pattern and the positions of the
-/// entries an active set switches. Symmetric (A symmetric): stored as its
-/// lower triangle, the storage every symmetric factorisation reads
-/// (`linalg`): at the shell's n = 256 the whole matrix was a second copy of
-/// A (1.1 GB) beside the problem's.
+/// The Newton matrix with its fixed entries and the positions of the
+/// multiplier diagonal, the one part that changes from step to step.
+/// Symmetric (A symmetric): stored as its lower triangle, the storage
+/// every symmetric factorisation reads (`linalg`): at the shell's n = 256
+/// the whole matrix was a second copy of A (1.1 GB) beside the problem's.
 struct NewtonMatrix {
     /// Shared with each step's factorisation for its refinement.
     matrix: Arc<SparseColMat<usize, f64>>,
-    /// For each constraint i: (value position in the matrix, s_i C_ij) of
-    /// the entries of row n + i (and of column n + i when stored whole).
-    entries: Vec<Vec<(usize, f64)>>,
     /// Value position of the diagonal entry (n + i, n + i).
     diagonal: Vec<usize>,
-    /// The diagonal value d of inactive rows.
-    d: f64,
+    /// The diagonal d_off of an inactive row (module docs).
+    switched_off: f64,
     /// The scaling s_i (λ_i = s_i μ_i).
     scale: Vec<f64>,
 }
@@ -221,9 +230,8 @@ impl NewtonMatrix {
             scale.push(a_max / row_max);
         }
         // Columns 0..n: A's column (lower: from the diagonal down), then the
-        // rows n + i of C's column j. Columns n..n+m: s_i (row i of C)ᵀ
-        // (whole only), then the diagonal. All values start switched off
-        // (set_active fills them).
+        // rows n + i of C's column j, s_i C_ij. Columns n..n+m: s_i (row i of
+        // C)ᵀ (whole only), then the diagonal (set by each step).
         let nnz_c: usize = c_rows.iter().map(Vec::len).sum();
         let nnz_a = match lower {
             true => (0..n)
@@ -235,7 +243,6 @@ impl NewtonMatrix {
         let mut col_ptr = Vec::with_capacity(n + m + 1);
         let mut row_idx = Vec::with_capacity(nnz);
         let mut values = Vec::with_capacity(nnz);
-        let mut entries: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
         col_ptr.push(0);
         for j in 0..n {
             let mut col: Vec<(usize, f64)> = as_
@@ -254,9 +261,8 @@ impl NewtonMatrix {
                 .collect();
             cc.sort_by_key(|e| e.0);
             for (i, v) in cc {
-                entries[i].push((values.len(), scale[i] * v));
                 row_idx.push(n + i);
-                values.push(0.0);
+                values.push(scale[i] * v);
             }
             col_ptr.push(row_idx.len());
         }
@@ -264,9 +270,8 @@ impl NewtonMatrix {
         for (i, row) in c_rows.iter_mut().enumerate() {
             row.sort_by_key(|e| e.0);
             for &(j, v) in row.iter().filter(|_| !lower) {
-                entries[i].push((values.len(), scale[i] * v));
                 row_idx.push(j);
-                values.push(0.0);
+                values.push(scale[i] * v);
             }
             diagonal.push(values.len());
             row_idx.push(n + i);
@@ -276,40 +281,29 @@ impl NewtonMatrix {
         let symbolic = SymbolicSparseColMat::new_checked(n + m, n + m, col_ptr, None, row_idx);
         Ok(NewtonMatrix {
             matrix: Arc::new(SparseColMat::new(symbolic, values)),
-            entries,
             diagonal,
-            d: a_max,
+            switched_off: a_max / (f64::EPSILON * f64::EPSILON),
             scale,
         })
     }
 
-    /// Every constraint row and multiplier column on, with the diagonal
-    /// −Δ_i of an interior-point step.
+    /// The multiplier diagonal −Δ_i of an interior-point step.
     fn set_barrier(&mut self, delta: &[f64]) {
-        self.set_rows(|i| (true, -delta[i]));
+        self.set_diagonal(|i| -delta[i]);
     }
 
-    /// Switches the constraint rows and multiplier columns to the active set.
+    /// The multiplier diagonal of the active set: 0 on it, −d_off off it.
     fn set_active(&mut self, active: &[bool]) {
-        let d = self.d;
-        self.set_rows(|i| match active[i] {
-            true => (true, 0.0),
-            false => (false, -d),
-        });
+        let off = self.switched_off;
+        self.set_diagonal(|i| if active[i] { 0.0 } else { -off });
     }
 
-    /// Row n + i (and column n + i) on or off, with its diagonal value:
-    /// `row(i)` = (on, diagonal).
-    fn set_rows(&mut self, row: impl Fn(usize) -> (bool, f64)) {
+    fn set_diagonal(&mut self, value: impl Fn(usize) -> f64) {
         let values = Arc::get_mut(&mut self.matrix)
             .expect("the previous step's factorisation is dropped")
             .val_mut();
-        for (i, entries) in self.entries.iter().enumerate() {
-            let (on, diagonal) = row(i);
-            for &(pos, v) in entries {
-                values[pos] = if on { v } else { 0.0 };
-            }
-            values[self.diagonal[i]] = diagonal;
+        for (i, &pos) in self.diagonal.iter().enumerate() {
+            values[pos] = value(i);
         }
     }
 }
@@ -380,6 +374,9 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         problem.interior.as_ref(),
         "active-set Newton matrix",
     )?;
+    // Steps differ in the multiplier diagonal only (module docs): the
+    // bubbles are eliminated once, by the first factorisation.
+    factorizer.keep_eliminations(Some(&newton.diagonal));
     let mut report = ReportBuilder::new("active-set", start, 0.0, t.elapsed().as_secs_f64())
         .with_history(&EXTRA_COLUMNS)
         .iterating(
@@ -415,9 +412,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             handover,
             max_steps: max_steps.min(options.max_iter.saturating_sub(1)),
         };
-        factorizer.keep_eliminations(Some(&newton.diagonal));
         let h = start.run(&mut newton, &mut factorizer, &mut report)?;
-        factorizer.keep_eliminations(None);
         max_linear_residual = h.max_linear_residual;
         interior_point_steps = h.steps - 1;
         first_step = h.steps + 1;
@@ -448,7 +443,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         let (factorization, mut z, solve_residual) = factorizer.factorize_and_solve_shared(
             &newton.matrix,
             &rhs,
-            Changed::Any,
+            Changed::Declared,
             "active-set Newton matrix",
         )?;
         report.factor_seconds += t.elapsed().as_secs_f64();
@@ -801,7 +796,7 @@ impl InteriorPoint<'_> {
         rhs[..n].copy_from_slice(&problem.rhs);
         let t = Instant::now();
         let (free, z, mut max_residual) =
-            factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, Changed::Any, WHAT)?;
+            factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, Changed::Declared, WHAT)?;
         report.factor_seconds += t.elapsed().as_secs_f64();
         check_finite(STAGE, 1, "free solve", &z)?;
         let mut x = z[..n].to_vec();
@@ -893,15 +888,13 @@ impl InteriorPoint<'_> {
             };
             // Predictor (affine scaling): r_c = −λ∘t.
             rhs_of(&|i| -slack[i] * lambda[i], &mut rhs);
-            // After the first step only the multiplier diagonal changes:
-            // the bubbles' eliminations are reused.
-            let changed = match k {
-                2 => Changed::Any,
-                _ => Changed::Declared,
-            };
             let t = Instant::now();
-            let (f, z, residual) =
-                factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, changed, WHAT)?;
+            let (f, z, residual) = factorizer.factorize_and_solve_shared(
+                &newton.matrix,
+                &rhs,
+                Changed::Declared,
+                WHAT,
+            )?;
             report.factor_seconds += t.elapsed().as_secs_f64();
             max_residual = max_residual.max(residual);
             check_finite(STAGE, k, "interior-point predictor", &z)?;
