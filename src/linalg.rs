@@ -1249,16 +1249,25 @@ impl EntryScale {
     /// its row, whose sum it balances) is no longer taken for that of the
     /// other rows. With the normwise level alone the refinement stopped at
     /// the exact active set with the shell's stationarity 2.1e-10 at
-    /// n = 128 (1.6e-11 with the switched rows' entries zero).
+    /// n = 128 (1.6e-11 with the switched rows' entries zero). A row within
+    /// the common level 4ε (max_{i≠j}|a_ij| ‖x‖∞ + ‖b‖∞) is measured
+    /// against it (its own is no lower): its diagonal is not read, and the
+    /// value is exact only above 1.
     fn excess(&self, r: &[f64], x: &[f64], b: &[f64], diagonal: impl Fn(usize) -> f64) -> f64 {
         let common = self.off_diagonal * norm_inf(x);
         let b_norm = norm_inf(b);
         let level = 4.0 * f64::EPSILON;
+        let at_common = level * (common + b_norm);
+        // The diagonal is read only where the common level is exceeded.
         r.iter()
             .zip(x)
             .enumerate()
             .fold(0.0f64, |m, (i, (ri, xi))| {
-                m.max(ri.abs() / (level * (common.max((diagonal(i) * xi).abs()) + b_norm)))
+                let ri = ri.abs();
+                m.max(match ri <= at_common {
+                    true => ri / at_common,
+                    false => ri / (level * (common.max((diagonal(i) * xi).abs()) + b_norm)),
+                })
             })
     }
 }
@@ -2451,8 +2460,9 @@ fn refine_to_round_off(
         let r_new = difference(b, &ax_new);
         let size_new = entry_scale.excess(&r_new, &candidate, b, &diagonal);
         // Keep the step only while it pays: at the accuracy the
-        // conditioning allows, refinement stalls or oscillates.
-        if size_new.is_nan() || size_new > 0.5 * size {
+        // conditioning allows, refinement stalls or oscillates. (A step to
+        // round-off is kept: below it `excess` is a bound, not a value.)
+        if size_new.is_nan() || (size_new > 0.5 * size && size_new > 1.0) {
             break;
         }
         x.copy_from_slice(&candidate);

@@ -205,21 +205,16 @@ impl NewtonMatrix {
         let (n, m) = (problem.n(), c.obstacle.len());
         let a = &problem.matrix;
         let a_max = norm_inf(a.val()).max(f64::MIN_POSITIVE);
-        let as_ = a.symbolic();
-        // Rows of C (the multiplier columns are −Cᵀ S).
-        let mut c_rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
-        let cs = c.matrix.symbolic();
+        let (as_, cs) = (a.symbolic(), c.matrix.symbolic());
+        // s_i from the row maxima of C.
+        let mut row_max = vec![0.0f64; m];
         for j in 0..c.matrix.ncols() {
-            for (i, v) in cs
-                .row_idx_of_col(j)
-                .zip(c.matrix.val_of_col(j).iter().copied())
-            {
-                c_rows[i].push((j, v));
+            for (i, v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
+                row_max[i] = row_max[i].max(v.abs());
             }
         }
         let mut scale = Vec::with_capacity(m);
-        for (i, row) in c_rows.iter().enumerate() {
-            let row_max = row.iter().fold(0.0f64, |s, &(_, v)| s.max(v.abs()));
+        for (i, &row_max) in row_max.iter().enumerate() {
             if row_max == 0.0 || !row_max.is_finite() {
                 return Err(Error::numerical(
                     STAGE,
@@ -229,49 +224,54 @@ impl NewtonMatrix {
             }
             scale.push(a_max / row_max);
         }
-        // Columns 0..n: A's column (lower: from the diagonal down), then the
-        // rows n + i of C's column j, s_i C_ij. Columns n..n+m: s_i (row i of
-        // C)ᵀ (whole only), then the diagonal (set by each step).
-        let nnz_c: usize = c_rows.iter().map(Vec::len).sum();
-        let nnz_a = match lower {
-            true => (0..n)
-                .map(|j| as_.row_idx_of_col(j).filter(|&i| i >= j).count())
-                .sum(),
-            false => a.val().len(),
+        // Rows are sorted within A's and C's columns (as every matrix
+        // `linalg` reads): each column is copied as it is, from the diagonal
+        // down for a lower triangle.
+        let first_of = |j: usize| -> usize {
+            let rows = as_.row_idx_of_col_raw(j);
+            debug_assert!(rows.windows(2).all(|w| w[0] < w[1]), "sorted rows");
+            if lower {
+                rows.partition_point(|&i| i < j)
+            } else {
+                0
+            }
         };
+        let nnz_a: usize = (0..n)
+            .map(|j| as_.row_idx_of_col_raw(j).len() - first_of(j))
+            .sum();
+        let nnz_c = c.matrix.val().len();
         let nnz = nnz_a + if lower { nnz_c } else { 2 * nnz_c } + m;
         let mut col_ptr = Vec::with_capacity(n + m + 1);
         let mut row_idx = Vec::with_capacity(nnz);
         let mut values = Vec::with_capacity(nnz);
+        // Columns 0..n: A's column, then the rows n + i of C's column j,
+        // s_i C_ij. Columns n..n+m: s_i (row i of C)ᵀ (whole only), then
+        // the diagonal (set by each step).
         col_ptr.push(0);
         for j in 0..n {
-            let mut col: Vec<(usize, f64)> = as_
-                .row_idx_of_col(j)
-                .zip(a.val_of_col(j).iter().copied())
-                .filter(|&(i, _)| !lower || i >= j)
-                .collect();
-            col.sort_by_key(|e| e.0);
-            for (r, v) in col {
-                row_idx.push(r);
-                values.push(v);
-            }
-            let mut cc: Vec<(usize, f64)> = cs
-                .row_idx_of_col(j)
-                .zip(c.matrix.val_of_col(j).iter().copied())
-                .collect();
-            cc.sort_by_key(|e| e.0);
-            for (i, v) in cc {
+            let first = first_of(j);
+            row_idx.extend_from_slice(&as_.row_idx_of_col_raw(j)[first..]);
+            values.extend_from_slice(&a.val_of_col(j)[first..]);
+            for (i, &v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
                 row_idx.push(n + i);
                 values.push(scale[i] * v);
             }
             col_ptr.push(row_idx.len());
         }
+        // The rows of C, for a whole matrix's multiplier columns.
+        let c_rows = match lower {
+            true => None,
+            false => Some(c.matrix.as_ref().transpose().to_col_major().map_err(|e| {
+                Error::numerical(STAGE, "constraint matrix", format!("its transpose: {e:?}"))
+            })?),
+        };
         let mut diagonal = Vec::with_capacity(m);
-        for (i, row) in c_rows.iter_mut().enumerate() {
-            row.sort_by_key(|e| e.0);
-            for &(j, v) in row.iter().filter(|_| !lower) {
-                row_idx.push(j);
-                values.push(scale[i] * v);
+        for i in 0..m {
+            if let Some(rows) = &c_rows {
+                for (j, &v) in rows.symbolic().row_idx_of_col(i).zip(rows.val_of_col(i)) {
+                    row_idx.push(j);
+                    values.push(scale[i] * v);
+                }
             }
             diagonal.push(values.len());
             row_idx.push(n + i);
