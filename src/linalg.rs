@@ -1193,15 +1193,13 @@ fn checked_scale(a: &SparseColMat<usize, f64>, what: &str) -> Result<EntryScale>
                 &row_idx[col_ptr[j]..col_ptr[j + 1]],
                 &values[col_ptr[j]..col_ptr[j + 1]],
             );
-            // A lower triangle's diagonal comes first.
-            let first = rows.first() == Some(&j);
-            match if first { Ok(0) } else { rows.binary_search(&j) } {
-                Ok(p) => {
+            match diagonal_position(rows, j) {
+                Some(p) => {
                     part(&col[..p], &mut off);
                     part(&col[p..=p], &mut diagonal);
                     part(&col[p + 1..], &mut off);
                 }
-                Err(_) => part(col, &mut off),
+                None => part(col, &mut off),
             }
         }
         let finite = off.1.iter().chain(&diagonal.1).all(|&ok| ok);
@@ -1273,14 +1271,17 @@ impl EntryScale {
 }
 
 /// a_jj of a matrix whose rows are sorted within each column (0 where not
-/// stored): the first entry of a lower triangle's column.
+/// stored).
 fn diagonal_entry(a: SparseColMatRef<'_, usize, f64>, j: usize) -> f64 {
-    let rows = a.symbolic().row_idx_of_col_raw(j);
-    let position = match rows.first() == Some(&j) {
-        true => Ok(0),
-        false => rows.binary_search(&j),
-    };
-    position.map_or(0.0, |p| a.val_of_col(j)[p])
+    diagonal_position(a.symbolic().row_idx_of_col_raw(j), j).map_or(0.0, |p| a.val_of_col(j)[p])
+}
+
+/// Where row j is in column j's sorted `rows`: first in a lower triangle's.
+fn diagonal_position(rows: &[usize], j: usize) -> Option<usize> {
+    match rows.first() == Some(&j) {
+        true => Some(0),
+        false => rows.binary_search(&j).ok(),
+    }
 }
 
 impl DirectFactorizer {

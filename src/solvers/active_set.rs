@@ -22,10 +22,10 @@
 //! d_off, is ε² max|A| |C_i x|. (ε is not enough: the thin shell's F is far
 //! below max|A| ‖x‖, and max|A|/ε moved its stationarity at n = 64 from
 //! 4.3e-11 to 2.8e-10; with ε² it is 4.3e-11 again, and at n = 128 the
-//! active set is the same, u within 1.5e-12 and λ within 1e-10 relative
-//! of the zeroed rows' solution.) So every
-//! step's matrix has the same entries off the multiplier diagonal (the
-//! interior-point steps' too, whose diagonal is −s_i² t_i/λ_i): the
+//! active set is the same, u within 1.3e-12 and λ within 1e-10 relative of
+//! the zeroed rows' solution.) So every step's matrix has the same entries
+//! off the multiplier diagonal (the interior-point steps' too, whose
+//! diagonal is −s_i² t_i/λ_i): the
 //! element bubbles, which the P0 constraints touch, are eliminated once
 //! for the whole solve and each factorisation updates S on that diagonal
 //! ([`Changed::Declared`]). Measured on the thesis shell at n = 128: a step
