@@ -408,13 +408,10 @@ impl SymmetricLower {
         lower_product(&self.col_ptr, &self.rows, &self.values, x)
     }
 
-    /// a_jj: the first entry of column j, when stored.
+    /// a_jj (0 where not stored).
     fn diagonal(&self, j: usize) -> f64 {
-        let k = self.col_ptr[j];
-        match k < self.col_ptr[j + 1] && self.rows[k] as usize == j {
-            true => self.values[k],
-            false => 0.0,
-        }
+        let column = self.col_ptr[j]..self.col_ptr[j + 1];
+        diagonal_position(&self.rows[column.clone()], j).map_or(0.0, |p| self.values[column][p])
     }
 }
 
@@ -834,18 +831,11 @@ impl FixedScale {
         let mut diagonal = self.diagonal;
         for &k in declared {
             if !values[k].is_finite() {
-                return Err(Error::numerical(
-                    what,
-                    "matrix entries",
-                    format!("entry {k} is not finite"),
-                ));
+                return Err(non_finite_entry(what, k));
             }
             diagonal = diagonal.max(values[k].abs());
         }
-        Ok(EntryScale {
-            norm: self.off_diagonal.max(diagonal).max(f64::MIN_POSITIVE),
-            off_diagonal: self.off_diagonal,
-        })
+        Ok(EntryScale::of(self.off_diagonal, diagonal))
     }
 }
 
@@ -1112,13 +1102,13 @@ impl ReusableFactorization {
         // for the pattern and every other entry, so neither is read again
         // (a pass over A's rows and one over its values: 12 ms of a 0.34 s
         // Newton step at the shell's n = 128).
-        let fixed = match (changed, &self.kept, &self.changing) {
+        let declared_scale = match (changed, &self.kept, &self.changing) {
             (Changed::Declared, Some(kept), Some(changing)) => {
-                kept.fixed_scale.map(|f| (f, changing.clone()))
+                kept.fixed_scale.map(|f| f.with(a, changing, what))
             }
             _ => None,
         };
-        if fixed.is_none() && !self.pattern.matches(a) {
+        if declared_scale.is_none() && !self.pattern.matches(a) {
             return Err(Error::numerical(
                 what,
                 "sparsity pattern",
@@ -1128,15 +1118,17 @@ impl ReusableFactorization {
         let Some(plan) = self.condensation.clone() else {
             return self.direct.factorize_and_solve(matrix.clone(), b, what);
         };
-        let scale = match &fixed {
-            Some((fixed, changing)) => fixed.with(a, changing, what)?,
+        let read_whole = declared_scale.is_none();
+        let scale = match declared_scale {
+            Some(scale) => scale?,
             None => checked_scale(a, what)?,
         };
         let norm = scale.norm;
         let storage = self.storage;
         let (s, local) = self.condense(&plan, a, changed, what)?;
         // A new kept elimination: the scale of what stays.
-        if let (None, Some(kept), Some(changing)) = (&fixed, self.kept.as_mut(), &self.changing) {
+        if let (true, Some(kept), Some(changing)) = (read_whole, self.kept.as_mut(), &self.changing)
+        {
             if kept.fixed_scale.is_none() {
                 kept.fixed_scale = FixedScale::of(a, scale, changing);
             }
@@ -1292,19 +1284,17 @@ fn checked_scale(a: &SparseColMat<usize, f64>, what: &str) -> Result<EntryScale>
             (o1.max(o2), d1.max(d2), f1 & f2)
         });
     match finite {
-        true => Ok(EntryScale {
-            norm: off_diagonal.max(diagonal).max(f64::MIN_POSITIVE),
-            off_diagonal,
-        }),
-        false => Err(Error::numerical(
+        true => Ok(EntryScale::of(off_diagonal, diagonal)),
+        false => Err(non_finite_entry(
             what,
-            "matrix entries",
-            format!(
-                "entry {} is not finite",
-                first_non_finite(values).expect("a non-finite entry")
-            ),
+            first_non_finite(values).expect("a non-finite entry"),
         )),
     }
+}
+
+/// The error for a matrix whose value `k` is not finite.
+fn non_finite_entry(what: &str, k: usize) -> Error {
+    Error::numerical(what, "matrix entries", format!("entry {k} is not finite"))
 }
 
 /// The size of a matrix's entries, for the round-off level of a residual
@@ -1318,6 +1308,14 @@ struct EntryScale {
 }
 
 impl EntryScale {
+    /// From the largest off-diagonal and diagonal |entries|.
+    fn of(off_diagonal: f64, diagonal: f64) -> Self {
+        EntryScale {
+            norm: off_diagonal.max(diagonal).max(f64::MIN_POSITIVE),
+            off_diagonal,
+        }
+    }
+
     /// How far the residual r of A x = b is above round-off (`diagonal(i)`
     /// = a_ii): max_i |r_i| / 4ε (max(max_{j≠i}|a_ij| ‖x‖∞, |a_ii x_i|) +
     /// ‖b‖∞), ≤ 1 at round-off. The level of every row is at most the
@@ -1359,10 +1357,10 @@ fn diagonal_entry(a: SparseColMatRef<'_, usize, f64>, j: usize) -> f64 {
 }
 
 /// Where row j is in column j's sorted `rows`: first in a lower triangle's.
-fn diagonal_position(rows: &[usize], j: usize) -> Option<usize> {
-    match rows.first() == Some(&j) {
+fn diagonal_position<R: RowIndex>(rows: &[R], j: usize) -> Option<usize> {
+    match rows.first().map(|r| r.get()) == Some(j) {
         true => Some(0),
-        false => rows.binary_search(&j).ok(),
+        false => rows.binary_search_by(|r| r.get().cmp(&j)).ok(),
     }
 }
 
@@ -2516,8 +2514,8 @@ fn solve_refined(
 
 /// Iterative refinement x ← x + M⁻¹(b − A x) of a solution x of A x = b,
 /// M⁻¹ = `solve` (in place) an approximate inverse, until the residual
-/// stops falling or is at round-off level ([`EntryScale::round_off`] of
-/// A's entries), at most [`MAX_REFINEMENT`] steps.
+/// stops falling or is at round-off level ([`EntryScale::excess`] ≤ 1),
+/// at most [`MAX_REFINEMENT`] steps.
 /// Returns A x of the final x (the product its last residual used: callers
 /// that need A x, Uzawa's KKT measures, take it instead of a second product).
 fn refine_to_round_off(
