@@ -400,13 +400,13 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
-    let problem = assemble(scene, &mesh, system.as_ref())?;
+    let mut problem = assemble(scene, &mesh, system.as_ref())?;
     phase_end("assembly");
 
     // The solver the scene names; without an obstacle, one linear solve.
     let warm_start = nested_start(scene, system.as_ref(), &problem)?;
     let report = crate::solvers::solve(
-        &problem,
+        &mut problem,
         &solver_options(&scene.solver, scene.model, warm_start, show_progress),
         &system.probes(),
     )
@@ -488,10 +488,10 @@ fn nested_start(
     coarse.mesh.n = Some(n / 2);
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
     let coarse_system = setup_model(&coarse, &coarse_mesh)?;
-    let coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
+    let mut coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
     let start = nested_start(&coarse, coarse_system.as_ref(), &coarse_problem)?;
     let report = crate::solvers::solve(
-        &coarse_problem,
+        &mut coarse_problem,
         &solver_options(&coarse.solver, coarse.model, start, false),
         &coarse_system.probes(),
     )?;

@@ -128,7 +128,7 @@ fn rel_diff(a: &[f64], b: &[f64]) -> f64 {
 /// the active-set report.
 fn all_solvers(
     case: &str,
-    problem: &ContactProblem,
+    problem: &mut ContactProblem,
     max_newton: usize,
     agree_x: f64,
     agree_lambda: f64,
@@ -213,13 +213,13 @@ fn all_solvers(
 /// P1⊕B3–P0 on the disk, n = 16 (784 triangles).
 #[test]
 fn disk_p1b_p0_solvers_agree() {
-    let problem = membrane("p1b-p0", 16);
+    let mut problem = membrane("p1b-p0", 16);
     eprintln!(
         "disk p1b-p0 n=16: {} unknowns, {} multipliers",
         problem.n(),
         problem.n_multipliers()
     );
-    let exact = all_solvers("disk p1b-p0", &problem, 10, 1e-6, 1e-6);
+    let exact = all_solvers("disk p1b-p0", &mut problem, 10, 1e-6, 1e-6);
     // Cold start: 𝒜₁ = {g > 0}, already close to the contact disk.
     assert!(exact.iterations <= 5, "{}", exact.iterations);
 }
@@ -227,32 +227,32 @@ fn disk_p1b_p0_solvers_agree() {
 /// P2–P1 on the disk, n = 16.
 #[test]
 fn disk_p2_p1_solvers_agree() {
-    let problem = membrane("p2-p1", 16);
+    let mut problem = membrane("p2-p1", 16);
     eprintln!(
         "disk p2-p1 n=16: {} unknowns, {} multipliers",
         problem.n(),
         problem.n_multipliers()
     );
-    let exact = all_solvers("disk p2-p1", &problem, 10, 1e-6, 1e-6);
+    let exact = all_solvers("disk p2-p1", &mut problem, 10, 1e-6, 1e-6);
     assert!(exact.iterations <= 5, "{}", exact.iterations);
 }
 
 /// The 16×16 thesis hypar with the rigid plane.
 #[test]
 fn shell_hypar_16_solvers_agree() {
-    let problem = shell(16);
+    let mut problem = shell(16);
     eprintln!(
         "shell 16×16: {} unknowns ({} primal), {} multipliers",
         problem.n(),
         problem.n_primal,
         problem.n_multipliers()
     );
-    let exact = all_solvers("shell 16x16", &problem, 30, 1e-6, 1e-6);
+    let exact = all_solvers("shell 16x16", &mut problem, 30, 1e-6, 1e-6);
     let changes = exact.history.column("changes").unwrap();
     eprintln!("shell 16x16: active-set changes per step {changes:?}");
     // Warm start from the solution: one Newton step.
     let warm = active_set(
-        &problem,
+        &mut problem,
         &ActiveSetOptions {
             initial_lambda: Some(exact.lambda.clone()),
             ..Default::default()
@@ -272,14 +272,14 @@ fn shell_hypar_16_solvers_agree() {
 /// finite, λ ≥ 0 at every interior-point iterate (dual_min of the row).
 #[test]
 fn interior_point_start_reaches_the_same_solution() {
-    for (case, problem) in [
+    for (case, mut problem) in [
         ("disk p1b-p0", membrane("p1b-p0", 16)),
         ("disk p2-p1", membrane("p2-p1", 16)),
         ("shell 16x16", shell(16)),
     ] {
-        let with = |cold_start| {
+        let mut with = |cold_start| {
             active_set(
-                &problem,
+                &mut problem,
                 &ActiveSetOptions {
                     cold_start,
                     ..Default::default()
@@ -365,9 +365,9 @@ fn lanczos_s_max_matches_dense_eigenvalue() {
 /// max_iter too small: a report that says "not converged", no error.
 #[test]
 fn max_iter_gives_a_non_converged_report() {
-    let problem = membrane("p1b-p0", 8);
+    let mut problem = membrane("p1b-p0", 8);
     let r = active_set(
-        &problem,
+        &mut problem,
         &ActiveSetOptions {
             max_iter: 1,
             ..Default::default()
@@ -397,14 +397,46 @@ fn max_iter_gives_a_non_converged_report() {
     assert_eq!(r.history.len(), 5);
 }
 
+/// The same matrix, entry for entry (pattern and values).
+fn same_entries(a: &SparseColMat<usize, f64>, b: &SparseColMat<usize, f64>) -> bool {
+    let (sa, sb) = (a.symbolic(), b.symbolic());
+    (a.nrows(), a.ncols()) == (b.nrows(), b.ncols())
+        && sa.col_ptr() == sb.col_ptr()
+        && sa.row_idx() == sb.row_idx()
+        && a.val() == b.val()
+}
+
+/// The active set builds its Newton matrix in A's own arrays and gives A
+/// back entry for entry, after a solve and after an error (a symmetric A
+/// as its lower triangle); a second solve is the first bit for bit.
+#[test]
+fn the_active_set_gives_a_back_entry_for_entry() {
+    let mut problem = membrane("p1b-p0", 8);
+    let whole = problem.matrix.clone();
+    problem.store_lower_triangle();
+    let lower = problem.matrix.clone();
+    problem.matrix = whole;
+    let first = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
+    assert!(first.converged && first.measures.kkt <= 1e-10);
+    assert!(same_entries(&problem.matrix, &lower));
+    let tight = ActiveSetOptions {
+        tol: 1e-30,
+        ..Default::default()
+    };
+    active_set(&mut problem, &tight).unwrap_err();
+    assert!(same_entries(&problem.matrix, &lower));
+    let second = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
+    assert_eq!((&second.x, &second.lambda), (&first.x, &first.lambda));
+}
+
 /// A tolerance below round-off: the active set stops changing above `tol`
 /// (stagnation, an error that says so); FISTA stops improving (stagnation
 /// after `stall_window` iterations).
 #[test]
 fn stagnation_is_detected() {
-    let problem = membrane("p1b-p0", 8);
+    let mut problem = membrane("p1b-p0", 8);
     let err = active_set(
-        &problem,
+        &mut problem,
         &ActiveSetOptions {
             tol: 1e-30,
             ..Default::default()
@@ -444,7 +476,7 @@ fn active_set_detects_cycling() {
         .map(|&(i, j, v)| Triplet::new(i, j, v))
         .collect();
     let identity: Vec<_> = (0..3).map(|i| Triplet::new(i, i, 1.0)).collect();
-    let problem = ContactProblem {
+    let mut problem = ContactProblem {
         matrix: SparseColMat::try_new_from_triplets(3, 3, &t).unwrap(),
         kind: MatrixKind::General,
         rhs: vec![1.0; 3],
@@ -456,8 +488,9 @@ fn active_set_detects_cycling() {
         }),
         interior: None,
     };
+    let general = problem.matrix.clone();
     let err = active_set(
-        &problem,
+        &mut problem,
         &ActiveSetOptions {
             initial_lambda: Some(vec![1.0, 0.0, 0.0]),
             ..Default::default()
@@ -465,6 +498,8 @@ fn active_set_detects_cycling() {
     )
     .unwrap_err();
     eprintln!("cycling: {err}");
+    // A general A is given back whole, entry for entry.
+    assert!(same_entries(&problem.matrix, &general));
     match &err {
         Error::Numerical {
             measure, reason, ..
@@ -476,7 +511,7 @@ fn active_set_detects_cycling() {
         other => panic!("unexpected error {other}"),
     }
     // The cold start (𝒜₁ = {g > 0} = ∅) finds the solution x = (1/3)(1,1,1).
-    let r = active_set(&problem, &ActiveSetOptions::default()).unwrap();
+    let r = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
     assert!(r.converged && r.iterations == 1);
     assert!(r.x.iter().all(|v| (v - 1.0 / 3.0).abs() < 1e-15));
 }
@@ -535,9 +570,9 @@ fn divergence_is_detected() {
 /// steps cold, 18 warm, 72 active triangles.
 #[test]
 fn nested_iteration_warm_start() {
-    let (coarse_mesh, coarse) = shell_with_mesh(16);
-    let (fine_mesh, fine) = shell_with_mesh(32);
-    let coarse_report = active_set(&coarse, &ActiveSetOptions::default()).unwrap();
+    let (coarse_mesh, mut coarse) = shell_with_mesh(16);
+    let (fine_mesh, mut fine) = shell_with_mesh(32);
+    let coarse_report = active_set(&mut coarse, &ActiveSetOptions::default()).unwrap();
     print("shell 16x16", &coarse_report);
     let inside = |mesh: &Mesh, t: usize, p: [f64; 2]| {
         let v = mesh.triangles[t].map(|i| mesh.vertices[i]);
@@ -569,7 +604,7 @@ fn nested_iteration_warm_start() {
     // Against plain PDAS from the free solution (the default depth bisection
     // beats both: tests/naghdi_scenes.rs).
     let cold = active_set(
-        &fine,
+        &mut fine,
         &ActiveSetOptions {
             cold_start: ColdStart::Plain,
             ..Default::default()
@@ -577,7 +612,7 @@ fn nested_iteration_warm_start() {
     )
     .unwrap();
     let warm = active_set(
-        &fine,
+        &mut fine,
         &ActiveSetOptions {
             initial_lambda: Some(lambda0),
             ..Default::default()
@@ -852,9 +887,9 @@ fn uzawa_options(step: UzawaStep) -> SolverOptions {
 /// every method is the one linear solve.
 #[test]
 fn the_entry_point_runs_every_method_and_the_linear_solve() {
-    let problem = membrane("p1b-p0", 8);
+    let mut problem = membrane("p1b-p0", 8);
     let direct = [
-        active_set(&problem, &ActiveSetOptions::default()).unwrap(),
+        active_set(&mut problem, &ActiveSetOptions::default()).unwrap(),
         dual_accelerated(&problem, &DualAcceleratedOptions::default()).unwrap(),
         uzawa_split(&problem, &UzawaSplitOptions::default()).unwrap(),
     ];
@@ -864,7 +899,7 @@ fn the_entry_point_runs_every_method_and_the_linear_solve() {
         SolverOptions::UzawaSplit(UzawaSplitOptions::default()),
     ];
     for (d, o) in direct.iter().zip(&options) {
-        let r = solve(&problem, o, &[]).unwrap();
+        let r = solve(&mut problem, o, &[]).unwrap();
         assert_eq!(r.algorithm, d.algorithm);
         assert_eq!(r.iterations, d.iterations, "{}", r.algorithm);
         assert!(r.x == d.x && r.lambda == d.lambda, "{}", r.algorithm);
@@ -889,7 +924,7 @@ fn the_entry_point_runs_every_method_and_the_linear_solve() {
         (UzawaStep::StabilityFactor(0.5), 1.0 / s.s_max),
         (UzawaStep::Given(5.0), 5.0),
     ] {
-        let r = solve(&problem, &uzawa_options(step), &[]).unwrap();
+        let r = solve(&mut problem, &uzawa_options(step), &[]).unwrap();
         print(&format!("entry point, Uzawa {step:?}"), &r);
         assert_eq!(r.algorithm, "uzawa");
         assert_eq!(r.alpha, Some(alpha), "{step:?}");
@@ -904,15 +939,15 @@ fn the_entry_point_runs_every_method_and_the_linear_solve() {
         assert!(rel_diff(&r.lambda, &direct[0].lambda) < 1e-5, "{step:?}");
     }
 
-    let free = ContactProblem {
+    let mut free = ContactProblem {
         constraint: None,
         ..membrane("p1b-p0", 8)
     };
     let mut reports: Vec<SolveReport> = options
         .iter()
-        .map(|o| solve(&free, o, &[]).unwrap())
+        .map(|o| solve(&mut free, o, &[]).unwrap())
         .collect();
-    reports.push(solve(&free, &uzawa_options(UzawaStep::Auto), &[]).unwrap());
+    reports.push(solve(&mut free, &uzawa_options(UzawaStep::Auto), &[]).unwrap());
     for r in &reports {
         assert_eq!(
             (r.algorithm.as_str(), r.stop_reason.as_str()),

@@ -100,7 +100,7 @@
 //! an earlier iteration is cycling (possible when A is not an M-matrix);
 //! both are errors that say so. `max_iter` gives a non-converged report.
 
-use super::measures::{kkt_measures, kkt_measures_with, KktMeasures, Products};
+use super::measures::{kkt_measures_with, KktMeasures, Products};
 use super::monitor::check_finite;
 use super::uzawa::solve_unconstrained;
 use super::{named, Constraint, ContactProblem, ReportBuilder, SolveReport};
@@ -185,11 +185,16 @@ impl ColdStart {
 /// The Newton matrix with its fixed entries and the positions of the
 /// multiplier diagonal, the one part that changes from step to step.
 /// Symmetric (A symmetric): stored as its lower triangle, the storage
-/// every symmetric factorisation reads (`linalg`): at the shell's n = 256
-/// the whole matrix was a second copy of A (1.1 GB) beside the problem's.
+/// every symmetric factorisation reads (`linalg`). Its leading block is
+/// the problem's A itself: [`NewtonMatrix::lend`] builds it in A's own
+/// arrays and [`NewtonMatrix::give_back`] returns them, so the solve holds
+/// one copy of A, not two (the shell at n = 256: 0.53 GB each).
 struct NewtonMatrix {
     /// Shared with each step's factorisation for its refinement.
     matrix: Arc<SparseColMat<usize, f64>>,
+    kind: MatrixKind,
+    /// The order n of A, the leading block.
+    n: usize,
     /// Value position of the diagonal entry (n + i, n + i).
     diagonal: Vec<usize>,
     /// The diagonal d_off of an inactive row (module docs).
@@ -199,65 +204,19 @@ struct NewtonMatrix {
 }
 
 impl NewtonMatrix {
-    fn new(problem: &ContactProblem, kind: MatrixKind) -> Result<Self> {
+    /// The Newton matrix of `problem`, built in the arrays of its A, which
+    /// it takes (`problem.matrix` is empty until [`NewtonMatrix::give_back`];
+    /// read A x through [`NewtonMatrix::a_product`] meanwhile). A symmetric
+    /// A is first kept as its lower triangle.
+    fn lend(problem: &mut ContactProblem, kind: MatrixKind) -> Result<Self> {
         let lower = kind != MatrixKind::General;
+        if lower {
+            problem.store_lower_triangle();
+        }
+        let (n, m) = (problem.n(), problem.n_multipliers());
+        let a_max = norm_inf(problem.matrix.val()).max(f64::MIN_POSITIVE);
         let c = problem.constraint.as_ref().expect("a constrained problem");
-        let (n, m) = (problem.n(), c.obstacle.len());
-        let a = &problem.matrix;
-        let a_max = norm_inf(a.val()).max(f64::MIN_POSITIVE);
-        let (as_, cs) = (a.symbolic(), c.matrix.symbolic());
-        // s_i from the row maxima of C.
-        let mut row_max = vec![0.0f64; m];
-        for j in 0..c.matrix.ncols() {
-            for (i, v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
-                row_max[i] = row_max[i].max(v.abs());
-            }
-        }
-        let mut scale = Vec::with_capacity(m);
-        for (i, &row_max) in row_max.iter().enumerate() {
-            if row_max == 0.0 || !row_max.is_finite() {
-                return Err(Error::numerical(
-                    STAGE,
-                    "constraint matrix",
-                    format!("row {i} of C is empty or not finite"),
-                ));
-            }
-            scale.push(a_max / row_max);
-        }
-        // Rows are sorted within A's and C's columns (as every matrix
-        // `linalg` reads): each column is copied as it is, from the diagonal
-        // down for a lower triangle.
-        let first_of = |j: usize| -> usize {
-            let rows = as_.row_idx_of_col_raw(j);
-            debug_assert!(rows.windows(2).all(|w| w[0] < w[1]), "sorted rows");
-            if lower {
-                rows.partition_point(|&i| i < j)
-            } else {
-                0
-            }
-        };
-        let nnz_a: usize = (0..n)
-            .map(|j| as_.row_idx_of_col_raw(j).len() - first_of(j))
-            .sum();
-        let nnz_c = c.matrix.val().len();
-        let nnz = nnz_a + if lower { nnz_c } else { 2 * nnz_c } + m;
-        let mut col_ptr = Vec::with_capacity(n + m + 1);
-        let mut row_idx = Vec::with_capacity(nnz);
-        let mut values = Vec::with_capacity(nnz);
-        // Columns 0..n: A's column, then the rows n + i of C's column j,
-        // s_i C_ij. Columns n..n+m: s_i (row i of C)ᵀ (whole only), then
-        // the diagonal (set by each step).
-        col_ptr.push(0);
-        for j in 0..n {
-            let first = first_of(j);
-            row_idx.extend_from_slice(&as_.row_idx_of_col_raw(j)[first..]);
-            values.extend_from_slice(&a.val_of_col(j)[first..]);
-            for (i, &v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
-                row_idx.push(n + i);
-                values.push(scale[i] * v);
-            }
-            col_ptr.push(row_idx.len());
-        }
+        let scale = constraint_scaling(c, a_max)?;
         // The rows of C, for a whole matrix's multiplier columns.
         let c_rows = match lower {
             true => None,
@@ -265,26 +224,86 @@ impl NewtonMatrix {
                 Error::numerical(STAGE, "constraint matrix", format!("its transpose: {e:?}"))
             })?),
         };
+        // A's arrays, compressed (rows sorted within each column, as every
+        // matrix `linalg` reads).
+        let a = crate::linalg::retain_entries(problem.take_matrix(), n, n, |_, _| true);
+        let c = problem.constraint.as_ref().expect("a constrained problem");
+        let cs = c.matrix.symbolic();
+        let (symbolic, mut values) = a.into_parts();
+        let (_, _, a_col_ptr, _, mut row_idx) = symbolic.into_parts();
+        // Columns 0..n: A's column, then the rows n + i of C's column j,
+        // s_i C_ij. Columns n..n+m: s_i (row i of C)ᵀ (whole only), then
+        // the diagonal (set by each step).
+        let mut col_ptr = Vec::with_capacity(n + m + 1);
+        col_ptr.push(0);
+        for j in 0..n {
+            let c_before = col_ptr[j] - a_col_ptr[j];
+            col_ptr.push(a_col_ptr[j + 1] + c_before + cs.row_idx_of_col_raw(j).len());
+        }
+        let nnz_columns = col_ptr[n] + m + c_rows.as_ref().map_or(0, |rows| rows.val().len());
+        // (Exact: `resize` alone would double the capacity.)
+        row_idx.reserve_exact(nnz_columns - row_idx.len());
+        values.reserve_exact(nnz_columns - values.len());
+        row_idx.resize(nnz_columns, 0);
+        values.resize(nnz_columns, 0.0);
+        // The multiplier columns lie past every entry of A: written first.
         let mut diagonal = Vec::with_capacity(m);
+        let mut k = col_ptr[n];
         for i in 0..m {
             if let Some(rows) = &c_rows {
                 for (j, &v) in rows.symbolic().row_idx_of_col(i).zip(rows.val_of_col(i)) {
-                    row_idx.push(j);
-                    values.push(scale[i] * v);
+                    (row_idx[k], values[k]) = (j, scale[i] * v);
+                    k += 1;
                 }
             }
-            diagonal.push(values.len());
-            row_idx.push(n + i);
-            values.push(0.0);
-            col_ptr.push(row_idx.len());
+            diagonal.push(k);
+            (row_idx[k], values[k]) = (n + i, 0.0);
+            k += 1;
+            col_ptr.push(k);
+        }
+        // A's columns move back from the last one: column j's new place
+        // starts at or after its old one and ends before column j + 1's.
+        for j in (0..n).rev() {
+            let (old, to) = (a_col_ptr[j]..a_col_ptr[j + 1], col_ptr[j]);
+            let mut k = to + old.len();
+            row_idx.copy_within(old.clone(), to);
+            values.copy_within(old, to);
+            for (i, &v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
+                (row_idx[k], values[k]) = (n + i, scale[i] * v);
+                k += 1;
+            }
+            debug_assert_eq!(k, col_ptr[j + 1]);
         }
         let symbolic = SymbolicSparseColMat::new_checked(n + m, n + m, col_ptr, None, row_idx);
         Ok(NewtonMatrix {
             matrix: Arc::new(SparseColMat::new(symbolic, values)),
+            kind,
+            n,
             diagonal,
             switched_off: a_max / (f64::EPSILON * f64::EPSILON),
             scale,
         })
+    }
+
+    /// A x, from the leading block: the product with (x, 0).
+    fn a_product(&self, x: &[f64]) -> Vec<f64> {
+        let mut z = x.to_vec();
+        z.resize(self.matrix.ncols(), 0.0);
+        let mut y = crate::linalg::product(&self.matrix, self.kind, &z);
+        y.truncate(self.n);
+        y
+    }
+
+    /// Gives `problem` its A back: the leading block, in the same arrays
+    /// (the entries of C and the multiplier columns dropped). Every
+    /// factorisation sharing the matrix must be dropped first.
+    fn give_back(self, problem: &mut ContactProblem) {
+        let matrix = Arc::try_unwrap(self.matrix).unwrap_or_else(|shared| {
+            debug_assert!(false, "a factorisation still shares the Newton matrix");
+            (*shared).clone()
+        });
+        let n = self.n;
+        problem.matrix = crate::linalg::retain_entries(matrix, n, n, |i, _| i < n);
     }
 
     /// The multiplier diagonal −Δ_i of an interior-point step.
@@ -308,8 +327,36 @@ impl NewtonMatrix {
     }
 }
 
+/// The row scaling s_i = max|A| / max_j |C_ij| of the Newton matrix.
+fn constraint_scaling(c: &Constraint, a_max: f64) -> Result<Vec<f64>> {
+    let m = c.obstacle.len();
+    let cs = c.matrix.symbolic();
+    let mut row_max = vec![0.0f64; m];
+    for j in 0..c.matrix.ncols() {
+        for (i, v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
+            row_max[i] = row_max[i].max(v.abs());
+        }
+    }
+    let mut scale = Vec::with_capacity(m);
+    for (i, &row_max) in row_max.iter().enumerate() {
+        if row_max == 0.0 || !row_max.is_finite() {
+            return Err(Error::numerical(
+                STAGE,
+                "constraint matrix",
+                format!("row {i} of C is empty or not finite"),
+            ));
+        }
+        scale.push(a_max / row_max);
+    }
+    Ok(scale)
+}
+
 /// Solves a contact problem by the primal–dual active set method (module docs).
-pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
+/// The problem's A is the Newton matrix's leading block during the solve
+/// ([`NewtonMatrix::lend`]) and is given back, with the same entries, at
+/// its end, an error's included; a symmetric A comes back as its lower
+/// triangle ([`ContactProblem::store_lower_triangle`]).
+pub fn active_set(problem: &mut ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
     let start = Instant::now();
     let Some(c) = problem.constraint.as_ref() else {
         return solve_unconstrained(problem);
@@ -344,17 +391,6 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         return Err(Error::numerical(STAGE, "c", "must be finite and > 0"));
     }
 
-    // The first active set.
-    let lambda0 = options
-        .initial_lambda
-        .clone()
-        .unwrap_or_else(|| vec![0.0; m]);
-    let mut active: Vec<bool> = match &options.initial_x {
-        Some(x0) => pdas_rule(c, &c_rule, &mat_vec(&c.matrix, x0), &lambda0),
-        None if options.initial_lambda.is_some() => lambda0.iter().map(|&l| l > 0.0).collect(),
-        None => c.obstacle.iter().map(|&g| g > 0.0).collect(),
-    };
-
     let t = Instant::now();
     // The Newton matrix is symmetric when A is; its multipliers (A's own,
     // then μ) take negative pivots.
@@ -366,7 +402,36 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             }
         }
     };
-    let mut newton = NewtonMatrix::new(problem, kind)?;
+    let mut newton = NewtonMatrix::lend(problem, kind)?;
+    let report = newton_steps(problem, &mut newton, &c_rule, options, (start, t));
+    newton.give_back(problem);
+    report
+}
+
+/// The Newton steps of [`active_set`] on the lent Newton matrix (A x from
+/// [`NewtonMatrix::a_product`]); `(start, t)`: the solve's start and its
+/// setup's.
+fn newton_steps(
+    problem: &ContactProblem,
+    newton: &mut NewtonMatrix,
+    c_rule: &[f64],
+    options: &ActiveSetOptions,
+    (start, t): (Instant, Instant),
+) -> Result<SolveReport> {
+    let c = problem.constraint.as_ref().expect("a constrained problem");
+    let (n, m) = (problem.n(), c.obstacle.len());
+    let kind = newton.kind;
+    // The first active set.
+    let lambda0 = options
+        .initial_lambda
+        .clone()
+        .unwrap_or_else(|| vec![0.0; m]);
+    let mut active: Vec<bool> = match &options.initial_x {
+        Some(x0) => pdas_rule(c, c_rule, &mat_vec(&c.matrix, x0), &lambda0),
+        None if options.initial_lambda.is_some() => lambda0.iter().map(|&l| l > 0.0).collect(),
+        None => c.obstacle.iter().map(|&g| g > 0.0).collect(),
+    };
+
     let mut factorizer = ReusableFactorization::analyze_with(
         &newton.matrix,
         kind,
@@ -408,11 +473,11 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
     {
         let start = InteriorPoint {
             problem,
-            c_rule: &c_rule,
+            c_rule,
             handover,
             max_steps: max_steps.min(options.max_iter.saturating_sub(1)),
         };
-        let h = start.run(&mut newton, &mut factorizer, &mut report)?;
+        let h = start.run(newton, &mut factorizer, &mut report)?;
         max_linear_residual = h.max_linear_residual;
         interior_point_steps = h.steps - 1;
         first_step = h.steps + 1;
@@ -476,7 +541,13 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
             .fold(0.0f64, |s, (a, b)| s.max((a - b).abs()));
         lambda = new_lambda;
         let cx = mat_vec(&c.matrix, &x);
-        let measures = kkt_measures(problem, &x, &lambda, Some(&cx));
+        let ax = newton.a_product(&x);
+        let products = Products {
+            ax: Some(&ax),
+            cx: Some(&cx),
+            ct_lambda: None,
+        };
+        let measures = kkt_measures_with(problem, &x, &lambda, products);
         let added = (0..m).filter(|&i| active[i] && !previous[i]).count();
         let removed = (0..m).filter(|&i| !active[i] && previous[i]).count();
         report.record(
@@ -497,7 +568,7 @@ pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Resul
         }
         // The next active set.
         let gaps: Vec<f64> = (0..m).map(|i| c.mean_gap(&cx, i)).collect();
-        let mut next = pdas_rule(c, &c_rule, &cx, &lambda);
+        let mut next = pdas_rule(c, c_rule, &cx, &lambda);
         if let Some(b) = bisection.as_mut() {
             match b.propose(&c.matrix, &active, &lambda, &gaps, next) {
                 Probe::Next(set) => {
@@ -807,7 +878,7 @@ impl InteriorPoint<'_> {
         check_finite(STAGE, 1, "free solve", &z)?;
         let mut x = z[..n].to_vec();
         let mut lambda = vec![0.0; m];
-        let mut products = IterateProducts::of(problem, &x, &lambda);
+        let mut products = IterateProducts::of(newton, problem, &x, &lambda);
         let mut predicted = pdas_rule(c, self.c_rule, &products.cx, &lambda);
         self.record(
             report,
@@ -934,7 +1005,7 @@ impl InteriorPoint<'_> {
                 .zip(&dl)
                 .for_each(|(v, d)| *v += alpha * d);
             slack.iter_mut().zip(&dt).for_each(|(v, d)| *v += alpha * d);
-            products = IterateProducts::of(problem, &x, &lambda);
+            products = IterateProducts::of(newton, problem, &x, &lambda);
             let next = pdas_rule(c, self.c_rule, &products.cx, &lambda);
             let before = std::mem::replace(&mut predicted, next);
             let changes = self.record(
@@ -1002,10 +1073,10 @@ struct IterateProducts {
 }
 
 impl IterateProducts {
-    fn of(problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> Self {
+    fn of(newton: &NewtonMatrix, problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> Self {
         let c = problem.constraint.as_ref().expect("a constrained problem");
         IterateProducts {
-            ax: problem.product(x),
+            ax: newton.a_product(x),
             cx: mat_vec(&c.matrix, x),
             ct_lambda: mat_t_vec(&c.matrix, lambda),
         }

@@ -90,6 +90,11 @@ impl ContactProblem {
 
     /// A x, whichever way A is stored.
     pub fn product(&self, x: &[f64]) -> Vec<f64> {
+        assert_eq!(
+            self.matrix.ncols(),
+            self.n(),
+            "A is read while taken out (`ContactProblem::take_matrix`)"
+        );
         crate::linalg::product(&self.matrix, self.kind, x)
     }
 
@@ -99,10 +104,16 @@ impl ContactProblem {
     /// 4838 → 4254 MB).
     pub fn store_lower_triangle(&mut self) {
         if self.kind != MatrixKind::General {
-            let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
-            let whole = std::mem::replace(&mut self.matrix, empty);
+            let whole = self.take_matrix();
             self.matrix = crate::linalg::into_lower_triangle(whole);
         }
+    }
+
+    /// Takes A out, leaving a 0 × 0 matrix (nothing reads A until the
+    /// taker puts it back).
+    pub(crate) fn take_matrix(&mut self) -> SparseColMat<usize, f64> {
+        let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
+        std::mem::replace(&mut self.matrix, empty)
     }
 }
 
@@ -118,9 +129,11 @@ pub enum SolverOptions {
 
 /// Solves a contact problem by the method of `options`; a problem without
 /// constraint is one linear solve, whatever the method. `probes` are
-/// recorded per iteration by the methods that take them (Uzawa).
+/// recorded per iteration by the methods that take them (Uzawa). `problem`
+/// is mutable for the active set alone, which builds its Newton matrix in
+/// A's arrays and gives A back at the end (`active_set`).
 pub fn solve(
-    problem: &ContactProblem,
+    problem: &mut ContactProblem,
     options: &SolverOptions,
     probes: &[Probe],
 ) -> Result<SolveReport> {
