@@ -120,7 +120,10 @@ pub struct BenchProblem {
     pub method_set: BTreeMap<String, Vec<String>>,
     /// Methods run on this problem (default: all).
     pub methods: Option<Vec<String>>,
-    /// Levels per method label (default: all levels); the others are "not run".
+    /// Levels per method label (default: all levels). The others get no
+    /// row, unless the method was capped at a coarser level: then they are
+    /// "not run" with the cap as their lower bound, like every level after
+    /// a capped one.
     #[serde(default)]
     pub method_levels: BTreeMap<String, Vec<toml::Value>>,
 }
@@ -485,22 +488,6 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                         ),
                     }
                 }
-                let excluded = p
-                    .method_levels
-                    .get(&m.label)
-                    .is_some_and(|ls| !ls.iter().any(|l| l.to_string() == level_s));
-                if excluded {
-                    for &tol in &tols {
-                        rows.push(BenchRow {
-                            tol,
-                            status: "not run".into(),
-                            seconds: cap,
-                            note: "level not in method_levels".into(),
-                            ..row0.clone()
-                        });
-                    }
-                    continue;
-                }
                 if capped_methods.contains(&m.label) {
                     for &tol in &tols {
                         rows.push(BenchRow {
@@ -511,6 +498,15 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                             ..row0.clone()
                         });
                     }
+                    continue;
+                }
+                // A level left out of the method's levels has no row: it
+                // was not measured, so it is neither a time nor a bound.
+                let excluded = p
+                    .method_levels
+                    .get(&m.label)
+                    .is_some_and(|ls| !ls.iter().any(|l| l.to_string() == level_s));
+                if excluded {
                     continue;
                 }
                 let mut mset = set.clone();
