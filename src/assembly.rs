@@ -320,7 +320,7 @@ impl ElementMatrix {
         }
     }
 
-    /// Adds `value(a, b)` at (dofs[a], dofs[b]) for every pair of an
+    /// Adds `value(a, b)` at `(dofs[a], dofs[b])` for every pair of an
     /// element's free dofs that the pattern holds (`dofs[k] = None`: an
     /// eliminated dof, skipped); a pair outside the pattern is a bug of
     /// the caller's element dofs and panics.

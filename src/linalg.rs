@@ -1934,7 +1934,7 @@ fn analyze_symmetric(
 /// The AMD order of the symmetric pattern with every multiplier (index ≥
 /// n_primal) moved right after the last of its primal neighbours: its
 /// pivot is then the nonzero local Schur complement −b K⁻¹ bᵀ instead of 0.
-/// Returns (forward, inverse), forward[new] = old.
+/// Returns (forward, inverse), `forward[new] = old`.
 fn multipliers_after_neighbours(
     a: &SparseColMat<usize, f64>,
     n_primal: usize,
@@ -2272,7 +2272,7 @@ struct OrderedPattern {
     /// P A Pᵀ's pattern, rows unsorted within a column: in each column the
     /// entries in the order A's columns give them.
     pattern: SymbolicSparseColMat<usize>,
-    /// The inverse order: inverse[old] = new.
+    /// The inverse order: `inverse[old] = new`.
     inverse: Vec<usize>,
     /// Whether P A Pᵀ is read by its upper triangle (simplicial).
     upper: bool,
@@ -2465,8 +2465,8 @@ impl OrderedMatrix<'_> {
 }
 
 /// P (D A D) Pᵀ without a copy ([`OrderedPattern::entries`]): entry t
-/// (row i, column j of the pattern) is values[source[t]] (scale[i]
-/// scale[j]).
+/// (row i, column j of the pattern) is `values[source[t]] scale[i]
+/// scale[j]`.
 struct OrderedEntries<'a> {
     pattern: SymbolicSparseColMatRef<'a, usize>,
     source: &'a [u32],
@@ -2558,7 +2558,7 @@ pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
 }
 
 /// y = A x for a matrix of `kind` as this module reads it: a symmetric one
-/// given by its lower triangle implies the upper one ([`Storage`]).
+/// given by its lower triangle implies the upper one (`Storage`).
 pub fn product(a: &SparseColMat<usize, f64>, kind: MatrixKind, x: &[f64]) -> Vec<f64> {
     Storage::of(a.as_ref(), kind).product(a.as_ref(), x)
 }

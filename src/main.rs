@@ -1,5 +1,9 @@
 //! `obstacle`: the command line of the pipeline.
 
+// The doc comments below are clap's help text, written for the terminal
+// (`<scene name>`, `[adapt]`), not rustdoc markup.
+#![allow(rustdoc::invalid_html_tags, rustdoc::broken_intra_doc_links)]
+
 use clap::{Parser, Subcommand};
 use obstacle_fem::bench::{run_bench, run_case, work_precision, BenchConfig};
 use obstacle_fem::error::{Error, Result};

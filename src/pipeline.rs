@@ -601,7 +601,7 @@ fn add_estimator(
     Some(total)
 }
 
-/// Where the plot `kind` of a run goes: FILE.<kind>.<png|svg> beside FILE.h5.
+/// Where the plot `kind` of a run goes: `FILE.<kind>.<png|svg>` beside `FILE.h5`.
 fn plot_path(scene: &Scene, out: &Path, kind: PlotKind) -> PathBuf {
     let name = kind.name();
     out.with_extension(format!("{name}.{}", scene.output.plot_format.extension()))

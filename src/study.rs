@@ -42,7 +42,7 @@ pub struct Study {
     /// Draw errors against h (log–log), one figure per group of the outer sweeps.
     #[serde(default)]
     pub convergence_plot: bool,
-    /// Table columns (default [`DEFAULT_COLUMNS`]); see [`column_value`].
+    /// Table columns (default [`DEFAULT_COLUMNS`]); see `column_value`.
     pub columns: Option<Vec<String>>,
     /// Per run, a table of history values at given iterations (thesis Table 5.5).
     pub history: Option<HistoryTableSpec>,
@@ -370,7 +370,7 @@ pub fn rates(rows: &[StudyRow], error: impl Fn(&RunSummary) -> Option<f64>) -> V
 }
 
 /// The columns of a study table when the study names none (the membrane's
-/// thesis tables). Names: see [`column_value`].
+/// thesis tables). Names: see `column_value`.
 pub const DEFAULT_COLUMNS: [&str; 20] = [
     "h",
     "triangles",

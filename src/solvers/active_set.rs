@@ -353,7 +353,7 @@ fn constraint_scaling(c: &Constraint, a_max: f64) -> Result<Vec<f64>> {
 
 /// Solves a contact problem by the primal–dual active set method (module docs).
 /// The problem's A is the Newton matrix's leading block during the solve
-/// ([`NewtonMatrix::lend`]) and is given back, with the same entries, at
+/// (`NewtonMatrix::lend`) and is given back, with the same entries, at
 /// its end, an error's included; a symmetric A comes back as its lower
 /// triangle ([`ContactProblem::store_lower_triangle`]).
 pub fn active_set(problem: &mut ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {

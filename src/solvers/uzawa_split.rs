@@ -49,7 +49,7 @@
 //! ψ part is not what limits the contact problem, λ is (as for Uzawa).
 //!
 //! Stops on the relative KKT measure only; errors on non-finite values,
-//! divergence and stagnation (as [`super::dual_accelerated`]).
+//! divergence and stagnation (as [`super::dual_accelerated()`]).
 
 use super::measures::kkt_measures;
 use super::monitor::Monitor;
