@@ -2665,6 +2665,53 @@ mod tests {
         assert_eq!(spare.take(8, "test").unwrap(), vec![0.0; 8]);
     }
 
+    /// `retain_entries` keeps the entries asked for, in place, from a
+    /// compressed matrix and from one whose columns have unused room
+    /// (`col_nnz`), and cuts rows and columns off: the leading 2 × 2 block
+    /// of a 3 × 3 matrix, and its lower triangle.
+    #[test]
+    fn retained_entries_are_the_ones_asked_for() {
+        // Column j holds rows 0..3 with value 10 i + j; with room: each
+        // column gets two unused slots after its entries.
+        let dense = |i: usize, j: usize| (10 * i + j) as f64;
+        let compressed = {
+            let t: Vec<_> = (0..3)
+                .flat_map(|j| (0..3).map(move |i| Triplet::new(i, j, dense(i, j))))
+                .collect();
+            SparseColMat::try_new_from_triplets(3, 3, &t).unwrap()
+        };
+        let with_room = {
+            let (mut rows, mut values) = (Vec::new(), Vec::new());
+            for j in 0..3 {
+                for i in 0..3 {
+                    rows.push(i);
+                    values.push(dense(i, j));
+                }
+                rows.extend([0, 0]);
+                values.extend([f64::NAN, f64::NAN]);
+            }
+            let symbolic = SymbolicSparseColMat::new_checked(
+                3,
+                3,
+                vec![0, 5, 10, 15],
+                Some(vec![3, 3, 3]),
+                rows,
+            );
+            SparseColMat::new(symbolic, values)
+        };
+        for a in [compressed, with_room] {
+            let block = retain_entries(a.clone(), 2, 2, |i, _| i < 2);
+            assert_eq!((block.nrows(), block.ncols()), (2, 2));
+            assert_eq!(block.symbolic().col_ptr(), &[0, 2, 4]);
+            assert_eq!(block.symbolic().row_idx(), &[0, 1, 0, 1]);
+            assert_eq!(block.val(), &[0.0, 10.0, 1.0, 11.0]);
+            let lower = into_lower_triangle(a);
+            assert_eq!(lower.symbolic().col_ptr(), &[0, 3, 5, 6]);
+            assert_eq!(lower.symbolic().row_idx(), &[0, 1, 2, 1, 2, 2]);
+            assert_eq!(lower.val(), &[0.0, 10.0, 20.0, 11.0, 21.0, 22.0]);
+        }
+    }
+
     /// A symmetric matrix given by its lower triangle multiplies as the
     /// whole matrix does, with one thread or two (the second half's sums
     /// added at the end): to round-off, in both halves of the split.
