@@ -540,14 +540,9 @@ fn newton_steps(
             .zip(&lambda)
             .fold(0.0f64, |s, (a, b)| s.max((a - b).abs()));
         lambda = new_lambda;
-        let cx = mat_vec(&c.matrix, &x);
-        let ax = newton.a_product(&x);
-        let products = Products {
-            ax: Some(&ax),
-            cx: Some(&cx),
-            ct_lambda: None,
-        };
-        let measures = kkt_measures_with(problem, &x, &lambda, products);
+        let products = IterateProducts::of(newton, problem, &x, &lambda);
+        let measures = products.measures(problem, &x, &lambda);
+        let cx = products.cx;
         let added = (0..m).filter(|&i| active[i] && !previous[i]).count();
         let removed = (0..m).filter(|&i| !active[i] && previous[i]).count();
         report.record(
@@ -1064,8 +1059,8 @@ impl InteriorPoint<'_> {
     }
 }
 
-/// A x, C x and Cᵀλ of an interior-point iterate: its measures, its
-/// predicted set and the next step's residuals read them.
+/// A x (from the lent Newton matrix), C x and Cᵀλ of an iterate: its
+/// measures, the next set and an interior-point step's residuals read them.
 struct IterateProducts {
     ax: Vec<f64>,
     cx: Vec<f64>,
