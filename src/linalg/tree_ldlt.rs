@@ -875,7 +875,9 @@ mod tests {
         assert!(schedule.top.iter().all(|&s| schedule.owner[s] == TOP));
         let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let ordered = pattern.equilibrated(&a, &vec![1.0; n]);
-        let entries = pattern.entries(&a, &vec![1.0; n]).expect("positions kept");
+        let entries = pattern
+            .entries(&a, &vec![1.0; n], None)
+            .expect("positions kept");
         let signs = &pattern.signs;
         let regularization = LdltRegularization {
             dynamic_regularization_signs: Some(signs),
