@@ -3130,18 +3130,34 @@ mod tests {
         (matrix(triplets(true)), matrix(triplets(false)))
     }
 
-    #[test]
-    fn declared_diagonal_entries_rescale_a_matrix_without_a_pass_over_it() {
+    /// The lower triangle of [`symmetric`], its column pointers, the
+    /// value positions of its diagonal entries in columns 1 and 3 (first
+    /// in each column) and its entry scale.
+    fn with_declared_diagonal() -> (SparseColMat<usize, f64>, Vec<usize>, [usize; 2], EntryScale) {
         let (_, lower) = symmetric();
         let col_ptr = lower.symbolic().col_ptr().to_vec();
-        // The diagonal entries of columns 1 and 3 (first in each column).
         let declared = [col_ptr[1], col_ptr[3]];
         let first = checked_scale(&lower, "test").unwrap();
+        (lower, col_ptr, declared, first)
+    }
+
+    /// `lower` with the values at `positions` set to `values`.
+    fn with_values(
+        lower: &SparseColMat<usize, f64>,
+        positions: &[usize],
+        values: &[f64],
+    ) -> SparseColMat<usize, f64> {
+        let mut all = lower.val().to_vec();
+        positions.iter().zip(values).for_each(|(&k, &v)| all[k] = v);
+        SparseColMat::new(lower.symbolic().to_owned().unwrap(), all)
+    }
+
+    #[test]
+    fn declared_diagonal_entries_rescale_a_matrix_without_a_pass_over_it() {
+        let (lower, col_ptr, declared, first) = with_declared_diagonal();
         let fixed = FixedScale::of(&lower, first, &declared).expect("declared on the diagonal");
         for (v1, v3) in [(3.0, 2.0), (-1e40, 0.5), (0.0, -7.0)] {
-            let mut values = lower.val().to_vec();
-            (values[declared[0]], values[declared[1]]) = (v1, v3);
-            let next = SparseColMat::new(lower.symbolic().to_owned().unwrap(), values);
+            let next = with_values(&lower, &declared, &[v1, v3]);
             let scale = fixed.with(&next, &declared, "test").unwrap();
             let whole = checked_scale(&next, "test").unwrap();
             assert_eq!(
@@ -3149,9 +3165,7 @@ mod tests {
                 (whole.norm, whole.off_diagonal)
             );
         }
-        let mut values = lower.val().to_vec();
-        values[declared[1]] = f64::NAN;
-        let next = SparseColMat::new(lower.symbolic().to_owned().unwrap(), values);
+        let next = with_values(&lower, &declared[1..], &[f64::NAN]);
         let e = fixed.with(&next, &declared, "test").unwrap_err();
         assert!(e
             .to_string()
@@ -3162,16 +3176,10 @@ mod tests {
 
     #[test]
     fn declared_diagonal_entries_reequilibrate_their_rows_only() {
-        let (_, lower) = symmetric();
-        let col_ptr = lower.symbolic().col_ptr().to_vec();
-        let declared = [col_ptr[1], col_ptr[3]];
-        let first = checked_scale(&lower, "test").unwrap();
+        let (lower, col_ptr, declared, first) = with_declared_diagonal();
         let mut kept = KeptScale::of(&lower, first, &declared).expect("rows 1 and 3 apart");
         // The other rows: Ruiz's with the declared entries read as 0.
-        let mut values = lower.val().to_vec();
-        (values[declared[0]], values[declared[1]]) = (0.0, 0.0);
-        let zeroed = SparseColMat::new(lower.symbolic().to_owned().unwrap(), values);
-        let d0 = symmetric_equilibration(&zeroed);
+        let d0 = symmetric_equilibration(&with_values(&lower, &declared, &[0.0, 0.0]));
         // |(D A D)_ij| of a lower triangle, each entry in its row and column.
         let row_maxima = |a: &SparseColMat<usize, f64>, d: &[f64]| {
             let mut m = vec![0.0f64; 4];
@@ -3185,9 +3193,7 @@ mod tests {
             m
         };
         for (v1, v3) in [(3.0, 2.0), (-1e40, 0.5), (0.0, -7.0), (1e-30, 0.0)] {
-            let mut values = lower.val().to_vec();
-            (values[declared[0]], values[declared[1]]) = (v1, v3);
-            let next = SparseColMat::new(lower.symbolic().to_owned().unwrap(), values);
+            let next = with_values(&lower, &declared, &[v1, v3]);
             let (scale, equilibration) = kept.with(&next, "test").unwrap();
             let whole = checked_scale(&next, "test").unwrap();
             assert_eq!(
