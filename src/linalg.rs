@@ -1121,15 +1121,12 @@ impl ReusableFactorization {
         }
         let Some(plan) = self.condensation.clone() else {
             let declared = match changed {
-                Changed::Declared => self.changing.clone(),
+                Changed::Declared => self.changing.as_deref(),
                 Changed::Any => None,
             };
-            return self.direct.factorize_and_solve_declared(
-                matrix.clone(),
-                b,
-                declared.as_deref(),
-                what,
-            );
+            return self
+                .direct
+                .factorize_and_solve_declared(matrix.clone(), b, declared, what);
         };
         let read_whole = declared_scale.is_none();
         let scale = match declared_scale {

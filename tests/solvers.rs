@@ -415,7 +415,7 @@ fn the_active_set_gives_a_back_entry_for_entry() {
     let whole = problem.matrix.clone();
     problem.store_lower_triangle();
     let lower = problem.matrix.clone();
-    problem.matrix = whole;
+    problem.matrix = whole.clone();
     let first = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
     assert!(first.converged && first.measures.kkt <= 1e-10);
     assert!(same_entries(&problem.matrix, &lower));
@@ -427,6 +427,45 @@ fn the_active_set_gives_a_back_entry_for_entry() {
     assert!(same_entries(&problem.matrix, &lower));
     let second = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
     assert_eq!((&second.x, &second.lambda), (&first.x, &first.lambda));
+    // A general A with unused room after each column (faer's col_nnz) is
+    // compressed before the Newton matrix is built in its arrays: the
+    // solve from the compressed A bit for bit, and that A comes back.
+    problem.kind = MatrixKind::General;
+    problem.matrix = whole.clone();
+    let compressed = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
+    problem.matrix = with_room_per_column(&whole);
+    let roomy = active_set(&mut problem, &ActiveSetOptions::default()).unwrap();
+    assert!(compressed.converged && compressed.measures.kkt <= 1e-10);
+    assert_eq!(
+        (&roomy.x, &roomy.lambda),
+        (&compressed.x, &compressed.lambda)
+    );
+    assert!(same_entries(&problem.matrix, &whole));
+}
+
+/// `a` with one unused slot after each column (its entries counted by
+/// col_nnz), the garbage slot a row index and value nobody may read.
+fn with_room_per_column(a: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+    let (sa, n) = (a.symbolic(), a.ncols());
+    let (mut col_ptr, mut col_nnz) = (vec![0], Vec::with_capacity(n));
+    let (mut row_idx, mut values) = (Vec::new(), Vec::new());
+    for j in 0..n {
+        let rows = sa.row_idx_of_col_raw(j);
+        row_idx.extend_from_slice(rows);
+        values.extend_from_slice(a.val_of_col(j));
+        row_idx.push(0);
+        values.push(f64::NAN);
+        col_nnz.push(rows.len());
+        col_ptr.push(row_idx.len());
+    }
+    let symbolic = faer::sparse::SymbolicSparseColMat::new_checked(
+        a.nrows(),
+        n,
+        col_ptr,
+        Some(col_nnz),
+        row_idx,
+    );
+    SparseColMat::new(symbolic, values)
 }
 
 /// A tolerance below round-off: the active set stops changing above `tol`

@@ -224,9 +224,14 @@ impl NewtonMatrix {
                 Error::numerical(STAGE, "constraint matrix", format!("its transpose: {e:?}"))
             })?),
         };
-        // A's arrays, compressed (rows sorted within each column, as every
-        // matrix `linalg` reads).
-        let a = crate::linalg::retain_entries(problem.take_matrix(), n, n, |_, _| true);
+        // A's arrays, compressed (no unused room per column); rows are
+        // sorted within each column, as in every matrix `linalg` reads. The
+        // pipeline's A is compressed already: no pass over it then.
+        let a = problem.take_matrix();
+        let a = match a.symbolic().col_nnz() {
+            Some(_) => crate::linalg::retain_entries(a, n, n, |_, _| true),
+            None => a,
+        };
         let c = problem.constraint.as_ref().expect("a constrained problem");
         let cs = c.matrix.symbolic();
         let (symbolic, mut values) = a.into_parts();
