@@ -867,6 +867,10 @@ struct DirectFactorizer {
     storage: Storage,
     symbolic_analyses: usize,
     numeric_factorizations: usize,
+    /// Their work in whole numeric factorisations: each counts the
+    /// fraction of the factor it computed (less than 1 where an LDLᵀ kept
+    /// supernodes of the last one).
+    factorized_work: f64,
     /// Why each fallback was taken, in order (named by a failure of the
     /// factorisation it led to).
     fallbacks: Vec<String>,
@@ -884,19 +888,21 @@ struct DirectFactorizer {
 /// The factor values of a dropped LDLᵀ, reused by the next one of the same
 /// size: faer zeroes them itself before it factorises, so fresh zeroed
 /// memory was a second pass over the factor (1.2 GB per Newton step at the
-/// shell's n = 256).
+/// shell's n = 256). With them, what they are the factor of, when the next
+/// one may keep the supernodes its changes do not reach ([`FactorInputs`]).
 #[derive(Default)]
-struct SpareFactors(std::sync::Mutex<Option<Vec<f64>>>);
+struct SpareFactors(std::sync::Mutex<Option<(Vec<f64>, Option<FactorInputs>)>>);
 
 impl SpareFactors {
     /// `len` values: the spare ones when they fit, else zeros; an error
     /// (not an abort) when the memory for them is not there, so the
     /// factoriser's fallbacks and its caller see it (the shell's n = 512:
     /// the fallback order's factor of 14.6 GB beside everything else).
-    fn take(&self, len: usize, what: &str) -> Result<Vec<f64>> {
+    /// With the values, what spare ones are the factor of.
+    fn take(&self, len: usize, what: &str) -> Result<(Vec<f64>, Option<FactorInputs>)> {
         let spare = self.0.lock().map(|mut s| s.take()).unwrap_or(None);
-        if let Some(values) = spare.filter(|v| v.len() == len) {
-            return Ok(values);
+        if let Some(spare) = spare.filter(|(v, _)| v.len() == len) {
+            return Ok(spare);
         }
         let mut values = Vec::new();
         values.try_reserve_exact(len).map_err(|_| {
@@ -910,13 +916,86 @@ impl SpareFactors {
             )
         })?;
         values.resize(len, 0.0);
-        Ok(values)
+        Ok((values, None))
     }
 
-    fn put(&self, values: Vec<f64>) {
+    fn put(&self, values: Vec<f64>, inputs: Option<FactorInputs>) {
         if let Ok(mut spare) = self.0.lock() {
-            *spare = Some(values);
+            *spare = Some((values, inputs));
         }
+    }
+}
+
+/// What a factor computed by the two threads' factorisation is the factor
+/// of, as far as the next matrix with the same kept scale may differ: its
+/// declared diagonal entries and their rows' scale. Everything else (the
+/// other entries and D, the analysis, the regularisation's size) the next
+/// matrix must share for its factorisation to keep supernodes of this one.
+#[derive(Debug)]
+struct FactorInputs {
+    /// The [`KeptScale`] the matrix was scaled by ([`KeptScale::generation`]).
+    generation: u64,
+    symbolic: Arc<SymbolicCholesky<usize>>,
+    /// The regularisation's size (max |D A D|), bit for bit.
+    norm: f64,
+    /// Per declared position: its value and its row's d_i.
+    declared: Vec<(f64, f64)>,
+}
+
+impl FactorInputs {
+    fn of(
+        kept: &KeptScale,
+        a: &SparseColMat<usize, f64>,
+        symbolic: &Arc<SymbolicCholesky<usize>>,
+        norm: f64,
+    ) -> Self {
+        let values = a.val();
+        FactorInputs {
+            generation: kept.generation,
+            symbolic: symbolic.clone(),
+            norm,
+            declared: kept
+                .positions
+                .iter()
+                .zip(&kept.rows)
+                .map(|(&k, &i)| (values[k], kept.d[i]))
+                .collect(),
+        }
+    }
+
+    /// The columns (in the analysis' order `inverse`) whose entries differ
+    /// between the matrices of `self` and `last`, or None when more than
+    /// declared entries may differ.
+    fn changed_columns(
+        &self,
+        last: &FactorInputs,
+        kept: &KeptScale,
+        inverse: &[usize],
+    ) -> Option<Vec<usize>> {
+        let same = self.generation == last.generation
+            && Arc::ptr_eq(&self.symbolic, &last.symbolic)
+            && self.norm.to_bits() == last.norm.to_bits()
+            && self.declared.len() == last.declared.len();
+        if !same {
+            return None;
+        }
+        let bits = |(v, d): (f64, f64)| (v.to_bits(), d.to_bits());
+        let mut columns = Vec::new();
+        for (r, (&now, &before)) in self.declared.iter().zip(&last.declared).enumerate() {
+            if bits(now) == bits(before) {
+                continue;
+            }
+            // Row i's entries of P A Pᵀ: its diagonal, and each (i, j) in
+            // the column of whichever of the two comes first.
+            let p = inverse[kept.rows[r]];
+            columns.push(p);
+            if now.1.to_bits() == before.1.to_bits() {
+                continue;
+            }
+            let neighbours = &kept.neighbours[kept.neighbour_ptr[r]..kept.neighbour_ptr[r + 1]];
+            columns.extend(neighbours.iter().map(|&j| inverse[j].min(p)));
+        }
+        Some(columns)
     }
 }
 
@@ -1242,6 +1321,13 @@ impl ReusableFactorization {
         self.direct.numeric_factorizations
     }
 
+    /// The numeric factorisations' work in whole factorisations: below
+    /// [`ReusableFactorization::numeric_factorizations`] where LDLᵀs kept
+    /// the supernodes that their matrix's changes did not reach.
+    pub fn factorized_work(&self) -> f64 {
+        self.direct.factorized_work
+    }
+
     /// The order of the factorised matrix: A's, or S's when condensed.
     pub fn factorized_order(&self) -> usize {
         self.condensation
@@ -1402,6 +1488,7 @@ impl DirectFactorizer {
             storage: Storage::of(a.as_ref(), kind),
             symbolic_analyses: 1,
             numeric_factorizations: 0,
+            factorized_work: 0.0,
             fallbacks: Vec::new(),
             lu_last: true,
             spare_factors: Arc::default(),
@@ -1457,7 +1544,8 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(analysis, matrix.to_arc(), storage, scale, equilibration, &self.spare_factors, what)
+                let kept = self.kept_scale.as_ref().and_then(|k| k.as_ref().ok()).filter(|_| equilibration.is_some());
+                let solved = RegularizedLdlt::new(analysis, matrix.to_arc(), storage, scale, equilibration, kept, &self.spare_factors, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
@@ -1471,7 +1559,7 @@ impl DirectFactorizer {
                         })
                     });
                 if let Some(done) = solved {
-                    self.numeric_factorizations += 1;
+                    self.count(&done.0);
                     return Ok(done);
                 }
                 let why = "LDLᵀ with positive pivots missed its backward error".to_string();
@@ -1484,6 +1572,7 @@ impl DirectFactorizer {
                 order,
             } => {
                 let (n_primal, order) = (*n_primal, *order);
+                let kept = self.kept_scale.as_ref().and_then(|k| k.as_ref().ok()).filter(|_| equilibration.is_some());
                 let ldlt =
                     RegularizedLdlt::new(
                         analysis,
@@ -1491,6 +1580,7 @@ impl DirectFactorizer {
                         storage,
                         scale,
                         equilibration,
+                        kept,
                         &self.spare_factors,
                         what,
                     );
@@ -1500,7 +1590,7 @@ impl DirectFactorizer {
                 });
                 let why = match solved {
                     Ok((f, x, quality)) if quality.accepted(self.accepted()) => {
-                        self.numeric_factorizations += 1;
+                        self.count(&f);
                         return Ok((f, x, quality.relative));
                     }
                     Ok((_, _, q)) => format!(
@@ -1537,7 +1627,7 @@ impl DirectFactorizer {
                 )?,
             ),
         };
-        self.numeric_factorizations += 1;
+        self.count(&f);
         match check_solve(a, storage, norm, &f, b, what) {
             Ok((x, quality)) => Ok((f, x, quality.relative)),
             Err(e) if matches!(self.symbolic, SymbolicAnalysis::Llt(_)) => {
@@ -1608,6 +1698,15 @@ impl DirectFactorizer {
         let scaled = kept.with(a, what);
         self.kept_scale = Some(Ok(kept));
         scaled.map(|(s, e)| (s, Some(e)))
+    }
+
+    /// One more numeric factorisation, `f`.
+    fn count(&mut self, f: &Factorization) {
+        self.numeric_factorizations += 1;
+        self.factorized_work += match f {
+            Factorization::Ldlt(ldlt) => ldlt.factorized,
+            _ => 1.0,
+        };
     }
 
     /// `reason`, preceded by the failures that led here.
@@ -1903,7 +2002,17 @@ struct KeptScale {
     off_diagonal: Vec<f64>,
     /// max |a_ij| d_i d_j over the entries in no declared row or column.
     fixed_norm: f64,
+    /// The other rows with an entry in declared row `positions[r]`'s row
+    /// or column: `neighbours[neighbour_ptr[r]..neighbour_ptr[r + 1]]`.
+    neighbour_ptr: Vec<usize>,
+    neighbours: Vec<usize>,
+    /// Unique to this scale: factors of matrices scaled by it may share
+    /// supernodes ([`FactorInputs`]).
+    generation: u64,
 }
+
+/// The next [`KeptScale::generation`].
+static KEPT_SCALES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 impl KeptScale {
     /// Of `a` (`scale` its [`checked_scale`]) for changes at the `declared`
@@ -1913,23 +2022,40 @@ impl KeptScale {
         let fixed = FixedScale::of(a, scale, declared)?;
         let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
         let rows: Vec<usize> = declared.iter().map(|&k| row_idx[k]).collect();
-        let mut is_declared = vec![false; a.nrows()];
-        rows.iter().for_each(|&i| is_declared[i] = true);
-        let d = ruiz_equilibration(a, |i, j| i == j && is_declared[i]);
+        // Per row: its place in `declared`, or usize::MAX.
+        let mut declared_as = vec![usize::MAX; a.nrows()];
+        rows.iter()
+            .enumerate()
+            .for_each(|(r, &i)| declared_as[i] = r);
+        let is_declared = |i: usize| declared_as[i] != usize::MAX;
+        let d = ruiz_equilibration(a, |i, j| i == j && is_declared(i));
         let mut off_diagonal = vec![0.0f64; a.nrows()];
         let mut fixed_norm = 0.0f64;
+        let mut pairs = Vec::new();
         for j in 0..a.ncols() {
             for k in col_ptr[j]..col_ptr[j + 1] {
                 let (i, v) = (row_idx[k], values[k].abs());
-                match (i == j, is_declared[i], is_declared[j]) {
+                match (i == j, is_declared(i), is_declared(j)) {
                     (true, false, _) => fixed_norm = fixed_norm.max(v * d[i] * d[i]),
                     (true, true, _) => {}
                     (false, true, true) => return None,
-                    (false, true, false) => off_diagonal[i] = off_diagonal[i].max(v * d[j]),
-                    (false, false, true) => off_diagonal[j] = off_diagonal[j].max(v * d[i]),
+                    (false, true, false) => {
+                        off_diagonal[i] = off_diagonal[i].max(v * d[j]);
+                        pairs.push((declared_as[i], j));
+                    }
+                    (false, false, true) => {
+                        off_diagonal[j] = off_diagonal[j].max(v * d[i]);
+                        pairs.push((declared_as[j], i));
+                    }
                     (false, false, false) => fixed_norm = fixed_norm.max(v * d[i] * d[j]),
                 }
             }
+        }
+        pairs.sort_unstable();
+        let mut neighbour_ptr = vec![0usize; rows.len() + 1];
+        pairs.iter().for_each(|&(r, _)| neighbour_ptr[r + 1] += 1);
+        for r in 0..rows.len() {
+            neighbour_ptr[r + 1] += neighbour_ptr[r];
         }
         Some(KeptScale {
             positions: declared.to_vec(),
@@ -1938,6 +2064,9 @@ impl KeptScale {
             d,
             off_diagonal,
             fixed_norm,
+            neighbour_ptr,
+            neighbours: pairs.into_iter().map(|(_, j)| j).collect(),
+            generation: KEPT_SCALES.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         })
     }
 
@@ -2292,26 +2421,37 @@ pub struct RegularizedLdlt {
     /// condensed factorisation (which refines against A anyway) when a test
     /// solve met round-off without a step (no pivot regularised).
     raw_solves_suffice: bool,
-    /// Where the factor values go when it is dropped.
+    /// Where the factor values go when it is dropped, and what they are
+    /// the factor of (when the next factorisation may keep part of them).
     spare_factors: Arc<SpareFactors>,
+    inputs: Option<FactorInputs>,
+    /// The fraction of the factor's entries this factorisation computed
+    /// (below 1 where it kept supernodes of the last one).
+    factorized: f64,
 }
 
 impl Drop for RegularizedLdlt {
     fn drop(&mut self) {
-        self.spare_factors.put(std::mem::take(&mut self.values));
+        self.spare_factors
+            .put(std::mem::take(&mut self.values), self.inputs.take());
     }
 }
 
 impl RegularizedLdlt {
     /// The two threads' split of the analysis is used when this thread's
     /// factorisations have two threads ([`set_threads`]); `entry_scale` is
-    /// the scale of the matrix's entries ([`checked_scale`]).
+    /// the scale of the matrix's entries ([`checked_scale`]). With `kept`
+    /// (the matrix scaled by it: `equilibration` is its), the supernodes
+    /// that the changes since the spare factor's matrix do not reach are
+    /// kept from it instead of factorised again.
+    #[allow(clippy::too_many_arguments)]
     fn new(
         analysis: &LdltAnalysis,
         matrix: Arc<SparseColMat<usize, f64>>,
         storage: Storage,
         entry_scale: EntryScale,
         equilibration: Option<Equilibration>,
+        kept: Option<&KeptScale>,
         spare_factors: &Arc<SpareFactors>,
         what: &str,
     ) -> Result<Self> {
@@ -2324,7 +2464,7 @@ impl RegularizedLdlt {
         let a = &*matrix;
         let Equilibration { d: scale, norm } =
             equilibration.unwrap_or_else(|| Equilibration::of(a));
-        let mut values = spare_factors.take(symbolic.len_val(), what)?;
+        let (mut values, last) = spare_factors.take(symbolic.len_val(), what)?;
         let regularization = |norm: f64| {
             let norm = norm.max(f64::MIN_POSITIVE);
             LdltRegularization {
@@ -2338,14 +2478,29 @@ impl RegularizedLdlt {
         // reads a scaled copy in its order.
         let tree = schedule.as_ref().filter(|_| two_threads());
         let entries = tree.and_then(|_| ordered.entries(a, &scale, norm));
-        let factorized = match (symbolic.raw(), tree, entries) {
+        let (mut inputs, mut factorized) = (None, 1.0);
+        let done = match (symbolic.raw(), tree, entries) {
             (SymbolicCholeskyRaw::Supernodal(raw), Some(tree), Some(entries)) => {
+                // Only the supernodes the changes since the spare factor's
+                // matrix reach, when it was factorised here with the same
+                // kept scale.
+                inputs = kept.map(|k| (k, FactorInputs::of(k, a, &symbolic, entries.norm)));
+                let only = match (&inputs, &last) {
+                    (Some((kept, now)), Some(last)) => now
+                        .changed_columns(last, kept, &ordered.inverse)
+                        .map(|columns| tree.changed_supernodes(columns.into_iter())),
+                    _ => None,
+                };
+                if let Some((_, fraction)) = &only {
+                    factorized = *fraction;
+                }
                 tree_ldlt::factorize(
                     &mut values,
                     &entries,
                     &regularization(entries.norm),
                     raw,
                     tree,
+                    only.as_ref().map(|(flags, _)| flags.as_slice()),
                 )
                 .map(|_| ())
             }
@@ -2355,7 +2510,7 @@ impl RegularizedLdlt {
             }
         };
         let schedule = tree.cloned();
-        factorized.map_err(|e| Error::numerical(what, "LDLᵀ", format!("zero pivot ({e:?})")))?;
+        done.map_err(|e| Error::numerical(what, "LDLᵀ", format!("zero pivot ({e:?})")))?;
         Ok(RegularizedLdlt {
             symbolic,
             values,
@@ -2366,6 +2521,8 @@ impl RegularizedLdlt {
             matrix,
             raw_solves_suffice: false,
             spare_factors: spare_factors.clone(),
+            inputs: inputs.map(|(_, inputs)| inputs),
+            factorized,
         })
     }
 
@@ -2863,9 +3020,9 @@ mod tests {
             e.contains("the test matrix") && e.contains("out of memory") && e.contains("GB"),
             "{e}"
         );
-        spare.put(vec![1.0; 8]);
-        assert_eq!(spare.take(8, "test").unwrap(), vec![1.0; 8]);
-        assert_eq!(spare.take(8, "test").unwrap(), vec![0.0; 8]);
+        spare.put(vec![1.0; 8], None);
+        assert_eq!(spare.take(8, "test").unwrap().0, vec![1.0; 8]);
+        assert_eq!(spare.take(8, "test").unwrap().0, vec![0.0; 8]);
     }
 
     /// `retain_entries` keeps the entries asked for, in place, from a

@@ -48,6 +48,12 @@ pub struct TreeSchedule {
     /// in its pattern (they come after its own subtree's: ancestors in
     /// postorder).
     top_rows_from: Vec<usize>,
+    /// Per supernode: its parent in the supernodal elimination tree
+    /// (after it), or `usize::MAX` for a root.
+    parent: Vec<usize>,
+    /// Per supernode, the multiply–adds of factorising it: its
+    /// descendants' updates and its dense LDLᵀ with the rows below.
+    factor_work: Vec<f64>,
 }
 
 /// Subtrees are split off the top of the tree while that lowers the
@@ -150,6 +156,15 @@ impl TreeSchedule {
                 pattern.partition_point(|&r| owner[supernode_of[r]] != TOP)
             })
             .collect();
+        let factor_work = (0..n_super)
+            .map(|s| {
+                let shape = Shape::of(symbolic, s);
+                let (w, below) = (shape.ncols as f64, (shape.nrows - shape.ncols) as f64);
+                let updates = &updates[counts[s]..counts[s + 1]];
+                w * w * (w / 3.0 + below)
+                    + updates.iter().map(|&d| shape.update_work(d)).sum::<f64>()
+            })
+            .collect();
         Some(TreeSchedule {
             owner,
             top,
@@ -157,7 +172,38 @@ impl TreeSchedule {
             updates,
             supernode_of,
             top_rows_from,
+            parent,
+            factor_work,
         })
+    }
+
+    /// Which supernodes a matrix that differs from the last one factorised
+    /// only in the entries of `changed_columns` (in the analysis' order)
+    /// must factorise anew: those holding such a column and their
+    /// ancestors (every other supernode reads only columns that did not
+    /// change, from descendants that did not either). Returns the flags
+    /// and their fraction of the estimated work.
+    pub fn changed_supernodes(
+        &self,
+        changed_columns: impl Iterator<Item = usize>,
+    ) -> (Vec<bool>, f64) {
+        let n_super = self.parent.len();
+        let mut changed = vec![false; n_super];
+        for c in changed_columns {
+            changed[self.supernode_of[c]] = true;
+        }
+        // Parents come after their children: one ascending pass.
+        for s in 0..n_super {
+            if changed[s] && self.parent[s] != usize::MAX {
+                changed[self.parent[s]] = true;
+            }
+        }
+        let total: f64 = self.factor_work.iter().sum();
+        let again: f64 = (0..n_super)
+            .filter(|&s| changed[s])
+            .map(|s| self.factor_work[s])
+            .sum();
+        (changed, if total > 0.0 { again / total } else { 1.0 })
     }
 
     fn updates_of(&self, s: usize) -> &[usize] {
@@ -230,14 +276,20 @@ impl Workspace {
 /// The numeric LDLᵀ of `a_lower` (in the symbolic analysis' order, lower
 /// triangle) into `values` (faer's supernodal layout): two threads on the
 /// subtrees of `schedule`, then the top supernodes in order, each with its
-/// descendants' updates split between the two. Returns the number of
-/// regularised pivots.
+/// descendants' updates split between the two. With `only`, just the
+/// supernodes it flags: `values` then holds the factor of a matrix that
+/// differs from `a_lower` only in columns of flagged supernodes, with the
+/// same regularisation ([`TreeSchedule::changed_supernodes`]), and the
+/// others are kept as they are (the same operations on the same values:
+/// the factor is the whole factorisation's bit for bit). Returns the
+/// number of regularised pivots in the supernodes factorised.
 pub fn factorize(
     values: &mut [f64],
     a_lower: &OrderedEntries<'_>,
     regularization: &LdltRegularization<'_, f64>,
     symbolic: &SymbolicSupernodalCholesky<usize>,
     schedule: &TreeSchedule,
+    only: Option<&[bool]>,
 ) -> Result<usize, LdltError> {
     assert_eq!(values.len(), symbolic.len_val());
     let inputs = Inputs {
@@ -247,6 +299,7 @@ pub fn factorize(
         regularization,
     };
     let value_ptr = symbolic.col_ptr_for_val();
+    let again = |s: usize| only.is_none_or(|flags| flags[s]);
     // Each supernode's block of `values`, handed to the thread that owns it.
     let n_super = symbolic.n_supernodes();
     let mut blocks: [Vec<Option<&mut [f64]>>; 2] = [
@@ -267,7 +320,7 @@ pub fn factorize(
         let mut count = 0;
         for s in 0..n_super {
             let (done, from_s) = mine.split_at_mut(s);
-            let Some(ls) = from_s[0].as_deref_mut() else {
+            let Some(ls) = from_s[0].as_deref_mut().filter(|_| again(s)) else {
                 continue;
             };
             ls.fill(0.0);
@@ -293,7 +346,7 @@ pub fn factorize(
     let mut count = a? + b?;
     let mut workspaces = [Workspace::new(symbolic), Workspace::new(symbolic)];
     let mut scratch = Vec::new();
-    for &s in &schedule.top {
+    for &s in schedule.top.iter().filter(|&&s| again(s)) {
         let (done, from_s) = values.split_at_mut(value_ptr[s]);
         let ls = &mut from_s[..value_ptr[s + 1] - value_ptr[s]];
         ls.fill(0.0);
@@ -802,8 +855,8 @@ impl<'a> Supernode<'a> {
 mod tests {
     use super::*;
     use faer::sparse::linalg::cholesky::{
-        factorize_symbolic_cholesky, supernodal, CholeskySymbolicParams, SymbolicCholeskyRaw,
-        SymmetricOrdering,
+        factorize_symbolic_cholesky, supernodal, CholeskySymbolicParams, SymbolicCholesky,
+        SymbolicCholeskyRaw, SymmetricOrdering,
     };
     use faer::sparse::linalg::SupernodalThreshold;
     use faer::sparse::{SparseColMat, Triplet};
@@ -846,14 +899,9 @@ mod tests {
         )
     }
 
-    /// Two threads on the tree give faer's supernodal factor to round-off
-    /// (AMD order, signed regularisation), with every supernode in exactly
-    /// one bin or the top, both bins used; and faer's solve bit for bit.
-    #[test]
-    fn tree_factorisation_and_solve_equal_faers() {
-        let (a, n_primal) = grid_saddle(60);
-        let n = a.nrows();
-        let symbolic = factorize_symbolic_cholesky(
+    /// The AMD analysis of `a`, supernodal whatever its size.
+    fn supernodal_amd(a: &SparseColMat<usize, f64>) -> SymbolicCholesky<usize> {
+        factorize_symbolic_cholesky(
             a.symbolic(),
             Side::Lower,
             SymmetricOrdering::Amd,
@@ -862,10 +910,96 @@ mod tests {
                 ..Default::default()
             },
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    fn supernodal_part(symbolic: &SymbolicCholesky<usize>) -> &SymbolicSupernodalCholesky<usize> {
         let SymbolicCholeskyRaw::Supernodal(raw) = symbolic.raw() else {
             panic!("forced supernodal")
         };
+        raw
+    }
+
+    /// A factorisation of the supernodes that changed multiplier diagonals
+    /// reach, over the factor of the last matrix, is the whole
+    /// factorisation of the new one bit for bit; it computes part of the
+    /// work only, and the supernodes it keeps do differ from a factor of
+    /// a matrix changed everywhere.
+    #[test]
+    fn refactorising_the_changed_supernodes_equals_the_whole_factorisation() {
+        let (a, n_primal) = grid_saddle(60);
+        let n = a.nrows();
+        let symbolic = supernodal_amd(&a);
+        let raw = supernodal_part(&symbolic);
+        let schedule = TreeSchedule::new(raw).expect("parents come after their children");
+        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
+        let regularization = LdltRegularization {
+            dynamic_regularization_signs: Some(&pattern.signs),
+            dynamic_regularization_delta: 1e-12,
+            dynamic_regularization_epsilon: 1e-14,
+        };
+        let ones = vec![1.0; n];
+        let whole = |a: &SparseColMat<usize, f64>| {
+            let entries = pattern.entries(a, &ones, None).expect("positions kept");
+            let mut values = vec![f64::NAN; raw.len_val()];
+            factorize(&mut values, &entries, &regularization, raw, &schedule, None).unwrap();
+            values
+        };
+        // The multiplier diagonal (−1e-3) changed in the rows `rows`.
+        let changed = |rows: &[usize], value: f64| {
+            let mut b = a.clone();
+            let (col_ptr, row_idx) = (
+                a.symbolic().col_ptr().to_vec(),
+                a.symbolic().row_idx().to_vec(),
+            );
+            for &i in rows {
+                let k = (col_ptr[i]..col_ptr[i + 1])
+                    .find(|&k| row_idx[k] == i)
+                    .unwrap();
+                b.val_mut()[k] = value;
+            }
+            b
+        };
+        let last = whole(&a);
+        let rows = [n_primal, n_primal + 100, n - 1];
+        let next = changed(&rows, -2e-3);
+        let columns = rows.iter().map(|&i| pattern.inverse[i]);
+        let (only, fraction) = schedule.changed_supernodes(columns);
+        assert!(fraction > 0.0 && fraction < 0.9, "{fraction}");
+        assert!(only.iter().any(|&f| !f) && only.iter().any(|&f| f));
+        let mut partial = last.clone();
+        let entries = pattern.entries(&next, &ones, None).unwrap();
+        factorize(
+            &mut partial,
+            &entries,
+            &regularization,
+            raw,
+            &schedule,
+            Some(&only),
+        )
+        .unwrap();
+        let differing = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .filter(|(x, y)| x.to_bits() != y.to_bits())
+                .count()
+        };
+        assert_eq!(differing(&partial, &whole(&next)), 0);
+        // The kept supernodes matter: with every multiplier changed, the
+        // whole factor differs from the partial one.
+        let all: Vec<usize> = (n_primal..n).collect();
+        assert!(differing(&partial, &whole(&changed(&all, -2e-3))) > 0);
+    }
+
+    /// Two threads on the tree give faer's supernodal factor to round-off
+    /// (AMD order, signed regularisation), with every supernode in exactly
+    /// one bin or the top, both bins used; and faer's solve bit for bit.
+    #[test]
+    fn tree_factorisation_and_solve_equal_faers() {
+        let (a, n_primal) = grid_saddle(60);
+        let n = a.nrows();
+        let symbolic = supernodal_amd(&a);
+        let raw = supernodal_part(&symbolic);
         let schedule = TreeSchedule::new(raw).expect("parents come after their children");
         for bin in 0..2u8 {
             assert!(schedule.owner.contains(&bin), "bin {bin} empty");
@@ -900,7 +1034,7 @@ mod tests {
         )
         .unwrap();
         let mut ours = vec![f64::NAN; raw.len_val()];
-        factorize(&mut ours, &entries, &regularization, raw, &schedule).unwrap();
+        factorize(&mut ours, &entries, &regularization, raw, &schedule, None).unwrap();
         let scale = super::super::norm_inf(&faers);
         let worst = super::super::norm_inf(&super::super::difference(&faers, &ours));
         assert!(

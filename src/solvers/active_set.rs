@@ -622,6 +622,7 @@ fn newton_steps(
             "numeric_factorizations",
             factorizer.numeric_factorizations() as f64,
         ),
+        ("factorized_work", factorizer.factorized_work()),
         ("max_linear_residual", max_linear_residual),
         ("bisection_probes", probes as f64),
         ("interior_point_steps", interior_point_steps as f64),
