@@ -904,8 +904,7 @@ impl SpareFactors {
         if let Some(spare) = spare.filter(|(v, _)| v.len() == len) {
             return Ok(spare);
         }
-        let mut values = Vec::new();
-        values.try_reserve_exact(len).map_err(|_| {
+        let values = zeroed(len).ok_or_else(|| {
             Error::numerical(
                 what,
                 "LDLᵀ",
@@ -915,7 +914,6 @@ impl SpareFactors {
                 ),
             )
         })?;
-        values.resize(len, 0.0);
         Ok((values, None))
     }
 
@@ -923,6 +921,25 @@ impl SpareFactors {
         if let Ok(mut spare) = self.0.lock() {
             *spare = Some((values, inputs));
         }
+    }
+}
+
+/// `len` zeros, or None when the memory is not there. Zeroed by the
+/// allocator (calloc): fresh pages come zero from the kernel and are first
+/// touched where the factorisation writes them, on both of its threads,
+/// instead of all at once here by one (the floor's first factorisation at
+/// the shell's n = 256 faulted in its 1.2 GB factor in a zero fill).
+fn zeroed(len: usize) -> Option<Vec<f64>> {
+    let layout = std::alloc::Layout::array::<f64>(len).ok()?;
+    if layout.size() == 0 {
+        return Some(Vec::new());
+    }
+    // SAFETY: the layout is Vec<f64>'s for capacity `len`, of nonzero size;
+    // a non-null pointer from the global allocator with it, all bytes 0
+    // (0.0), is a valid Vec of `len` values.
+    unsafe {
+        let ptr = std::alloc::alloc_zeroed(layout).cast::<f64>();
+        (!ptr.is_null()).then(|| Vec::from_raw_parts(ptr, len, len))
     }
 }
 
