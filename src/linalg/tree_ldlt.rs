@@ -15,6 +15,10 @@
 //! updates go through a gathered product instead of faer's crate-private
 //! scatter kernel, so values agree with faer's to round-off. One-column
 //! solves run on the same split ([`solve_in_place`]), bit for bit faer's.
+//! A matrix that differs from the last one factorised only in some columns
+//! needs only the supernodes holding them and their ancestors computed
+//! again ([`TreeSchedule::changed_supernodes`]): the rest of the factor
+//! stays, bit for bit what a whole factorisation would give.
 
 use super::OrderedEntries;
 use faer::dyn_stack::{MemBuffer, MemStack};
@@ -61,6 +65,13 @@ pub struct TreeSchedule {
 /// estimated time max(bin) + top (in flops: Σ over columns of the column
 /// count squared, the updates a column sends counted with it).
 const MAX_SPLITS: usize = 64;
+/// Update products with at least this many rows in the supernode compute
+/// only the lower triangle of that block: faer's triangular product costs
+/// more per call, and below it the whole block was faster (shell active
+/// set, `obstacle bench case`, three runs each: n = 16 0.0282–0.0292 s
+/// against 0.0306–0.0318 s triangular everywhere; n = 128 5.49–5.58 against
+/// 5.69–5.72 s; n = 256 38.0 against 38.9 s).
+const TRIANGLE_FROM: usize = 32;
 /// The owner of a supernode above the subtrees.
 const TOP: u8 = 2;
 
@@ -529,11 +540,15 @@ impl<'a> Shape<'a> {
         )
     }
 
-    /// Descendant d's update in multiply–adds: its product (the top block's
-    /// lower triangle and the rows below it) and its scatter.
+    /// Descendant d's update in multiply–adds: its product (from
+    /// [`TRIANGLE_FROM`] rows on, the top block's lower triangle and the rows
+    /// below it) and its scatter.
     fn update_work(&self, d: usize) -> f64 {
         let (_, d_ncols, _, mid, below) = self.reach(d);
-        let entries = (below - mid) * mid + mid * (mid + 1) / 2;
+        let entries = match mid < TRIANGLE_FROM {
+            true => below * mid,
+            false => (below - mid) * mid + mid * (mid + 1) / 2,
+        };
         entries as f64 * (d_ncols + 1) as f64
     }
 
@@ -551,11 +566,11 @@ impl<'a> Shape<'a> {
             let ld_mid_bot = ld.subrows(d_ncols + from, below);
             let ld_mid = ld_mid_bot.subrows(0, mid);
             // W = L_mid D (mid × d_ncols), then P = L_mid_bot Wᵀ (below × mid),
-            // of its top mid × mid block only the lower triangle (the one
-            // scattered: the whole block made the root's updates, a square
-            // block, twice their work; numeric LDLᵀ of the shell's S at
-            // n = 256 1.68 → 1.52 s); the buffers only grow (every entry
-            // used is written first).
+            // from TRIANGLE_FROM rows on of its top mid × mid block only the
+            // lower triangle (the one scattered: the whole block made the
+            // root's updates, a square block, twice their work; numeric LDLᵀ
+            // of the shell's S at n = 256 1.68 → 1.52 s); the buffers only
+            // grow (every entry used is written first).
             grow(&mut ws.scaled, mid * d_ncols);
             let mut w =
                 MatMut::from_column_major_slice_mut(&mut ws.scaled[..mid * d_ncols], mid, d_ncols);
@@ -569,26 +584,31 @@ impl<'a> Shape<'a> {
             let mut p =
                 MatMut::from_column_major_slice_mut(&mut ws.product[..below * mid], below, mid);
             let w = MatRef::from_column_major_slice(&ws.scaled[..mid * d_ncols], mid, d_ncols);
-            let (p_top, p_below) = p.rb_mut().split_at_row_mut(mid);
-            triangular::matmul(
-                p_top,
-                BlockStructure::TriangularLower,
-                Accum::Replace,
-                ld_mid,
-                BlockStructure::Rectangular,
-                w.transpose(),
-                BlockStructure::Rectangular,
-                1.0,
-                Par::Seq,
-            );
-            matmul(
-                p_below,
-                Accum::Replace,
-                ld_mid_bot.subrows(mid, below - mid),
-                w.transpose(),
-                1.0,
-                Par::Seq,
-            );
+            if mid < TRIANGLE_FROM {
+                let p = p.rb_mut();
+                matmul(p, Accum::Replace, ld_mid_bot, w.transpose(), 1.0, Par::Seq);
+            } else {
+                let (p_top, p_below) = p.rb_mut().split_at_row_mut(mid);
+                triangular::matmul(
+                    p_top,
+                    BlockStructure::TriangularLower,
+                    Accum::Replace,
+                    ld_mid,
+                    BlockStructure::Rectangular,
+                    w.transpose(),
+                    BlockStructure::Rectangular,
+                    1.0,
+                    Par::Seq,
+                );
+                matmul(
+                    p_below,
+                    Accum::Replace,
+                    ld_mid_bot.subrows(mid, below - mid),
+                    w.transpose(),
+                    1.0,
+                    Par::Seq,
+                );
+            }
             ws.local_rows.clear();
             ws.local_rows.extend(
                 d_pattern[from..]
