@@ -868,8 +868,8 @@ struct DirectFactorizer {
     symbolic_analyses: usize,
     numeric_factorizations: usize,
     /// Their work in whole numeric factorisations: each counts the
-    /// fraction of the factor it computed (less than 1 where an LDLᵀ kept
-    /// supernodes of the last one).
+    /// fraction of a whole one's estimated work it did (less than 1 where
+    /// an LDLᵀ kept supernodes of the last one).
     factorized_work: f64,
     /// Why each fallback was taken, in order (named by a failure of the
     /// factorisation it led to).
@@ -2442,7 +2442,7 @@ pub struct RegularizedLdlt {
     /// the factor of (when the next factorisation may keep part of them).
     spare_factors: Arc<SpareFactors>,
     inputs: Option<FactorInputs>,
-    /// The fraction of the factor's entries this factorisation computed
+    /// The fraction of a whole factorisation's estimated work this one did
     /// (below 1 where it kept supernodes of the last one).
     factorized: f64,
 }
