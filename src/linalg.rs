@@ -1538,6 +1538,12 @@ impl DirectFactorizer {
     ) -> Result<(Factorization, Vec<f64>, f64)> {
         let a: &SparseColMat<usize, f64> = &matrix;
         let (scale, equilibration) = self.scale_of(a, declared, what)?;
+        // The kept scale that gave `equilibration`, if one did.
+        let kept = self
+            .kept_scale
+            .as_ref()
+            .and_then(|k| k.as_ref().ok())
+            .filter(|_| equilibration.is_some());
         let norm = scale.norm;
         let storage = self.storage;
         let f = match &self.symbolic {
@@ -1561,7 +1567,6 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let kept = self.kept_scale.as_ref().and_then(|k| k.as_ref().ok()).filter(|_| equilibration.is_some());
                 let solved = RegularizedLdlt::new(analysis, matrix.to_arc(), storage, scale, equilibration, kept, &self.spare_factors, what)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
@@ -1589,7 +1594,6 @@ impl DirectFactorizer {
                 order,
             } => {
                 let (n_primal, order) = (*n_primal, *order);
-                let kept = self.kept_scale.as_ref().and_then(|k| k.as_ref().ok()).filter(|_| equilibration.is_some());
                 let ldlt =
                     RegularizedLdlt::new(
                         analysis,
@@ -2501,9 +2505,9 @@ impl RegularizedLdlt {
                 // Only the supernodes the changes since the spare factor's
                 // matrix reach, when it was factorised here with the same
                 // kept scale.
-                inputs = kept.map(|k| (k, FactorInputs::of(k, a, &symbolic, entries.norm)));
-                let only = match (&inputs, &last) {
-                    (Some((kept, now)), Some(last)) => now
+                inputs = kept.map(|k| FactorInputs::of(k, a, &symbolic, entries.norm));
+                let only = match (kept, &inputs, &last) {
+                    (Some(kept), Some(now), Some(last)) => now
                         .changed_columns(last, kept, &ordered.inverse)
                         .map(|columns| tree.changed_supernodes(columns.into_iter())),
                     _ => None,
@@ -2538,7 +2542,7 @@ impl RegularizedLdlt {
             matrix,
             raw_solves_suffice: false,
             spare_factors: spare_factors.clone(),
-            inputs: inputs.map(|(_, inputs)| inputs),
+            inputs,
             factorized,
         })
     }

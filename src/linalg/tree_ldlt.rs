@@ -952,6 +952,15 @@ mod tests {
         .unwrap()
     }
 
+    /// The tests' signed regularisation (δ = 1e-12, ε = 1e-14).
+    fn test_regularization(signs: &[i8]) -> LdltRegularization<'_, f64> {
+        LdltRegularization {
+            dynamic_regularization_signs: Some(signs),
+            dynamic_regularization_delta: 1e-12,
+            dynamic_regularization_epsilon: 1e-14,
+        }
+    }
+
     fn supernodal_part(symbolic: &SymbolicCholesky<usize>) -> &SymbolicSupernodalCholesky<usize> {
         let SymbolicCholeskyRaw::Supernodal(raw) = symbolic.raw() else {
             panic!("forced supernodal")
@@ -972,11 +981,7 @@ mod tests {
         let raw = supernodal_part(&symbolic);
         let schedule = TreeSchedule::new(raw).expect("parents come after their children");
         let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
-        let regularization = LdltRegularization {
-            dynamic_regularization_signs: Some(&pattern.signs),
-            dynamic_regularization_delta: 1e-12,
-            dynamic_regularization_epsilon: 1e-14,
-        };
+        let regularization = test_regularization(&pattern.signs);
         let ones = vec![1.0; n];
         let whole = |a: &SparseColMat<usize, f64>| {
             let entries = pattern.entries(a, &ones, None).expect("positions kept");
@@ -1051,12 +1056,7 @@ mod tests {
         let entries = pattern
             .entries(&a, &vec![1.0; n], None)
             .expect("positions kept");
-        let signs = &pattern.signs;
-        let regularization = LdltRegularization {
-            dynamic_regularization_signs: Some(signs),
-            dynamic_regularization_delta: 1e-12,
-            dynamic_regularization_epsilon: 1e-14,
-        };
+        let regularization = test_regularization(&pattern.signs);
         let mut faers = vec![0.0; raw.len_val()];
         let mut buffer = MemBuffer::new(supernodal::factorize_supernodal_numeric_ldlt_scratch::<
             usize,
