@@ -72,6 +72,10 @@ const MAX_SPLITS: usize = 64;
 /// against 0.0306–0.0318 s triangular everywhere; n = 128 5.49–5.58 against
 /// 5.69–5.72 s; n = 256 38.0 against 38.9 s).
 const TRIANGLE_FROM: usize = 32;
+/// A top supernode this wide or wider takes its dense LDLᵀ on two threads
+/// ([`Shape::finish_on_two_threads`]), in blocks of [`TOP_BLOCK`] columns.
+const TWO_THREAD_PIVOTS_FROM: usize = 512;
+const TOP_BLOCK: usize = 128;
 /// The owner of a supernode above the subtrees.
 const TOP: u8 = 2;
 
@@ -446,7 +450,10 @@ fn factor_top_supernode<'b>(
     }
     shape.unmap_rows(&mut ws.global_to_local);
     shape.unmap_rows(&mut other_ws.global_to_local);
-    shape.finish(inputs.regularization, ls, &mut ws.stack)
+    match shape.ncols >= TWO_THREAD_PIVOTS_FROM {
+        true => shape.finish_on_two_threads(inputs.regularization, ls, &mut ws.stack, scratch),
+        false => shape.finish(inputs.regularization, ls, &mut ws.stack),
+    }
 }
 
 /// Supernode s's columns and rows.
@@ -643,12 +650,33 @@ impl<'a> Shape<'a> {
         stack: &mut MemBuffer,
     ) -> Result<usize, LdltError> {
         let (mut ls_top, mut ls_bot) = ls.rb_mut().split_at_row_mut(self.ncols);
+        let count = self.pivots(reg, 0, ls_top.rb_mut(), stack)?;
+        solve_unit_lower_triangular_in_place(
+            ls_top.rb(),
+            ls_bot.rb_mut().transpose_mut(),
+            Par::Seq,
+        );
+        divide_columns_by_pivots(ls_top.rb(), ls_bot);
+        Ok(count)
+    }
+
+    /// faer's dense LDLᵀ of the diagonal block of the supernode's columns
+    /// from `first` on, `block` (its strictly upper part zeroed after):
+    /// the number of regularised pivots.
+    fn pivots(
+        &self,
+        reg: &LdltRegularization<'_, f64>,
+        first: usize,
+        mut block: MatMut<'_, f64>,
+        stack: &mut MemBuffer,
+    ) -> Result<usize, LdltError> {
+        let (from, width) = (self.start + first, block.ncols());
         let count = match cholesky_in_place(
-            ls_top.rb_mut(),
+            block.rb_mut(),
             LdltRegularization {
                 dynamic_regularization_signs: reg
                     .dynamic_regularization_signs
-                    .map(|signs| &signs[self.start..self.end]),
+                    .map(|signs| &signs[from..from + width]),
                 dynamic_regularization_delta: reg.dynamic_regularization_delta,
                 dynamic_regularization_epsilon: reg.dynamic_regularization_epsilon,
             },
@@ -659,28 +687,139 @@ impl<'a> Shape<'a> {
             Ok(info) => info.dynamic_regularization_count,
             Err(LdltError::ZeroPivot { index }) => {
                 return Err(LdltError::ZeroPivot {
-                    index: index + self.start,
+                    index: index + from,
                 })
             }
         };
-        for j in 0..self.ncols {
+        for j in 0..width {
             for i in 0..j {
-                ls_top[(i, j)] = 0.0;
-            }
-        }
-        solve_unit_lower_triangular_in_place(
-            ls_top.rb(),
-            ls_bot.rb_mut().transpose_mut(),
-            Par::Seq,
-        );
-        for j in 0..self.ncols {
-            let d = ls_top[(j, j)].recip();
-            for i in 0..self.pattern.len() {
-                ls_bot[(i, j)] *= d;
+                block[(i, j)] = 0.0;
             }
         }
         Ok(count)
     }
+
+    /// [`Shape::finish`] on two threads, right-looking in blocks of
+    /// [`TOP_BLOCK`] columns: a block's pivots on this thread, then its rows
+    /// below solved (and its L D rows in the supernode's columns kept in
+    /// `wt`, row-major) in two halves, then the columns after it updated in
+    /// two parts of about equal work. The same factor as
+    /// [`Shape::finish`] to round-off: a wide top supernode's dense LDLᵀ was
+    /// the one step of a factorisation on one thread.
+    fn finish_on_two_threads(
+        &self,
+        reg: &LdltRegularization<'_, f64>,
+        mut ls: MatMut<'_, f64>,
+        stack: &mut MemBuffer,
+        wt: &mut Vec<f64>,
+    ) -> Result<usize, LdltError> {
+        let (nrows, ncols) = (self.nrows, self.ncols);
+        let mut count = 0;
+        let mut k0 = 0;
+        while k0 < ncols {
+            let k1 = (k0 + TOP_BLOCK).min(ncols);
+            let nb = k1 - k0;
+            let (left, right) = ls.rb_mut().split_at_col_mut(k1);
+            let (diagonal, mut panel) = left
+                .subcols_mut(k0, nb)
+                .subrows_mut(k0, nrows - k0)
+                .split_at_row_mut(nb);
+            let mut diagonal = diagonal;
+            count += self.pivots(reg, k0, diagonal.rb_mut(), stack)?;
+            let diagonal = diagonal.rb();
+            // The rows below: L D (their rows in the supernode's columns
+            // into wt), then L.
+            let in_columns = ncols - k1;
+            wt.clear();
+            wt.resize(in_columns * nb, 0.0);
+            let half = (nrows - k1) / 2;
+            let (upper, lower) = panel.rb_mut().split_at_row_mut(half);
+            let (wt_upper, wt_lower) = wt.split_at_mut(half.min(in_columns) * nb);
+            let solve_rows = |mut rows: MatMut<'_, f64>, wt: &mut [f64]| {
+                solve_unit_lower_triangular_in_place(
+                    diagonal,
+                    rows.rb_mut().transpose_mut(),
+                    Par::Seq,
+                );
+                for (i, w) in wt.chunks_exact_mut(nb).enumerate() {
+                    for (k, w) in w.iter_mut().enumerate() {
+                        *w = rows[(i, k)];
+                    }
+                }
+                divide_columns_by_pivots(diagonal, rows);
+            };
+            std::thread::scope(|scope| {
+                scope.spawn(|| solve_rows(lower, wt_lower));
+                solve_rows(upper, wt_upper);
+            });
+            // The columns after the block: −L (L D)ᵀ, lower part.
+            let (l, wt) = (
+                panel.rb(),
+                MatRef::from_row_major_slice(&wt[..], in_columns, nb),
+            );
+            let split = equal_work_split(nrows - k1, in_columns);
+            let (first, second) = right.split_at_col_mut(split);
+            let update = |mut columns: MatMut<'_, f64>, c0: usize| {
+                let width = columns.ncols();
+                let (top, below) = columns
+                    .rb_mut()
+                    .subrows_mut(k1 + c0, nrows - k1 - c0)
+                    .split_at_row_mut(width);
+                let w = wt.subrows(c0, width).transpose();
+                triangular::matmul(
+                    top,
+                    BlockStructure::TriangularLower,
+                    Accum::Add,
+                    l.subrows(c0, width),
+                    BlockStructure::Rectangular,
+                    w,
+                    BlockStructure::Rectangular,
+                    -1.0,
+                    Par::Seq,
+                );
+                let rest = nrows - k1 - c0 - width;
+                matmul(
+                    below,
+                    Accum::Add,
+                    l.subrows(c0 + width, rest),
+                    w,
+                    -1.0,
+                    Par::Seq,
+                );
+            };
+            std::thread::scope(|scope| {
+                scope.spawn(|| update(second, split));
+                update(first, 0);
+            });
+            k0 = k1;
+        }
+        Ok(count)
+    }
+}
+
+/// The rows below a supernode's diagonal block times D⁻¹ (its pivots).
+fn divide_columns_by_pivots(diagonal: MatRef<'_, f64>, mut rows: MatMut<'_, f64>) {
+    for j in 0..diagonal.ncols() {
+        let d = diagonal[(j, j)].recip();
+        for i in 0..rows.nrows() {
+            rows[(i, j)] *= d;
+        }
+    }
+}
+
+/// Where to split `columns` trailing columns of a lower-trapezoidal
+/// block of `rows` rows so both parts hold about as many entries (column
+/// c holds rows − c).
+fn equal_work_split(rows: usize, columns: usize) -> usize {
+    let total: usize = (0..columns).map(|c| rows - c).sum();
+    let mut sum = 0;
+    for c in 0..columns {
+        if 2 * sum >= total {
+            return c;
+        }
+        sum += rows - c;
+    }
+    columns
 }
 
 /// Solves L D Lᵀ x = b in place for one column (x in the analysis'
@@ -1096,6 +1235,84 @@ mod tests {
         assert_eq!(
             differing, 0,
             "the solves differ in {differing} of {n} entries"
+        );
+    }
+
+    /// A wide supernode's dense LDLᵀ on two threads is the one-thread
+    /// finish to round-off: a quasi-definite diagonal block (positive
+    /// primal, negative multiplier pivots, one pivot regularised) with rows
+    /// below, TOP_BLOCK-unaligned, so every block and both splits are used.
+    #[test]
+    fn two_thread_pivots_equal_the_one_thread_finish() {
+        let (ncols, below, n_primal) = (2 * TOP_BLOCK + 77, 150, 2 * TOP_BLOCK + 10);
+        let nrows = ncols + below;
+        // Entries from a fixed linear congruential sequence in [-0.5, 0.5).
+        let mut state = 12345u64;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut block = vec![0.0; nrows * ncols];
+        for j in 0..ncols {
+            for i in j..nrows {
+                let v = next();
+                block[i + j * nrows] = match (i == j, j < n_primal, i < n_primal) {
+                    (true, true, _) => 40.0 + v,
+                    (true, false, _) => -(40.0 + v),
+                    (false, _, true) | (false, false, false) => 0.1 * v,
+                    (false, true, false) => v,
+                };
+            }
+        }
+        // One primal unknown decoupled with a zero diagonal: its pivot is
+        // regularised (faer counts the positive ones).
+        let tiny = n_primal - 5;
+        for j in 0..tiny {
+            block[tiny + j * nrows] = 0.0;
+        }
+        for i in tiny..nrows {
+            block[i + tiny * nrows] = 0.0;
+        }
+        let (a, _) = grid_saddle(4);
+        let symbolic = supernodal_amd(&a);
+        let mut signs = vec![1i8; ncols];
+        signs[n_primal..].fill(-1);
+        let regularization = test_regularization(&signs);
+        let pattern: Vec<usize> = (ncols..nrows).collect();
+        let shape = Shape {
+            start: 0,
+            end: ncols,
+            ncols,
+            nrows,
+            pattern: &pattern,
+            symbolic: supernodal_part(&symbolic),
+        };
+        let mut stack = MemBuffer::new(cholesky_in_place_scratch::<f64>(
+            ncols,
+            Par::Seq,
+            Default::default(),
+        ));
+        let mut one = block.clone();
+        let count_one = shape
+            .finish(&regularization, shape.matrix(&mut one), &mut stack)
+            .unwrap();
+        let mut two = block;
+        let count_two = shape
+            .finish_on_two_threads(
+                &regularization,
+                shape.matrix(&mut two),
+                &mut stack,
+                &mut Vec::new(),
+            )
+            .unwrap();
+        assert_eq!((count_one, count_two), (1, 1), "regularised pivots");
+        let scale = super::super::norm_inf(&one);
+        let worst = super::super::norm_inf(&super::super::difference(&one, &two));
+        assert!(
+            worst <= 1e-13 * scale,
+            "the factors differ by {worst:e} (scale {scale:e})"
         );
     }
 }
