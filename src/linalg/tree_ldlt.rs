@@ -8,12 +8,14 @@
 //! tree, though, never read each other's columns: here two threads factor
 //! two sets of subtrees of about equal work ([`TreeSchedule`]), then the
 //! supernodes above them (the top of the tree) are factored in order, the
-//! updates each receives from its descendants split between the two. Each
-//! supernode is computed exactly as faer does it (same layout, same
-//! updates from the same descendants, same dense LDLᵀ with the signed
+//! updates each receives from its descendants split between the two (and
+//! a wide one's dense LDLᵀ too, [`Shape::finish_on_two_threads`]). Each
+//! supernode is computed as faer does it (same layout, same updates from
+//! the same descendants, faer's dense LDLᵀ with the signed
 //! regularisation), so faer's solves read the result; the descendants'
 //! updates go through a gathered product instead of faer's crate-private
-//! scatter kernel, so values agree with faer's to round-off. One-column
+//! scatter kernel, and a wide top supernode's pivots are taken in blocks,
+//! so values agree with faer's to round-off. One-column
 //! solves run on the same split ([`solve_in_place`]), bit for bit faer's.
 //! A matrix that differs from the last one factorised only in some columns
 //! needs only the supernodes holding them and their ancestors computed
