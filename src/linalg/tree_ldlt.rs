@@ -77,6 +77,8 @@ const TRIANGLE_FROM: usize = 32;
 /// A top supernode this wide or wider takes its dense LDLᵀ on two threads
 /// ([`Shape::finish_on_two_threads`]), in blocks of [`TOP_BLOCK`] columns.
 const TWO_THREAD_PIVOTS_FROM: usize = 512;
+/// Columns per block there: the products of the update have 128 as their
+/// inner size, and a block's own pivots (one thread) stay a small part.
 const TOP_BLOCK: usize = 128;
 /// The owner of a supernode above the subtrees.
 const TOP: u8 = 2;
