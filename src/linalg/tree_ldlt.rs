@@ -599,26 +599,7 @@ impl<'a> Shape<'a> {
                 let p = p.rb_mut();
                 matmul(p, Accum::Replace, ld_mid_bot, w.transpose(), 1.0, Par::Seq);
             } else {
-                let (p_top, p_below) = p.rb_mut().split_at_row_mut(mid);
-                triangular::matmul(
-                    p_top,
-                    BlockStructure::TriangularLower,
-                    Accum::Replace,
-                    ld_mid,
-                    BlockStructure::Rectangular,
-                    w.transpose(),
-                    BlockStructure::Rectangular,
-                    1.0,
-                    Par::Seq,
-                );
-                matmul(
-                    p_below,
-                    Accum::Replace,
-                    ld_mid_bot.subrows(mid, below - mid),
-                    w.transpose(),
-                    1.0,
-                    Par::Seq,
-                );
+                lower_trapezoid_product(p.rb_mut(), Accum::Replace, ld_mid_bot, w.transpose(), 1.0);
             }
             ws.local_rows.clear();
             ws.local_rows.extend(
@@ -763,32 +744,14 @@ impl<'a> Shape<'a> {
             );
             let split = equal_work_split(nrows - k1, in_columns);
             let (first, second) = right.split_at_col_mut(split);
-            let update = |mut columns: MatMut<'_, f64>, c0: usize| {
-                let width = columns.ncols();
-                let (top, below) = columns
-                    .rb_mut()
-                    .subrows_mut(k1 + c0, nrows - k1 - c0)
-                    .split_at_row_mut(width);
-                let w = wt.subrows(c0, width).transpose();
-                triangular::matmul(
-                    top,
-                    BlockStructure::TriangularLower,
+            let update = |columns: MatMut<'_, f64>, c0: usize| {
+                let (width, rows) = (columns.ncols(), nrows - k1 - c0);
+                lower_trapezoid_product(
+                    columns.subrows_mut(k1 + c0, rows),
                     Accum::Add,
-                    l.subrows(c0, width),
-                    BlockStructure::Rectangular,
-                    w,
-                    BlockStructure::Rectangular,
+                    l.subrows(c0, rows),
+                    wt.subrows(c0, width).transpose(),
                     -1.0,
-                    Par::Seq,
-                );
-                let rest = nrows - k1 - c0 - width;
-                matmul(
-                    below,
-                    Accum::Add,
-                    l.subrows(c0 + width, rest),
-                    w,
-                    -1.0,
-                    Par::Seq,
                 );
             };
             std::thread::scope(|scope| {
@@ -799,6 +762,40 @@ impl<'a> Shape<'a> {
         }
         Ok(count)
     }
+}
+
+/// dst (rows × width, rows ≥ width) ← dst + alpha · lhs rhs (or without dst
+/// for `Accum::Replace`), only the lower triangle of its top width × width
+/// block and every row below it: the part of a symmetric update that is
+/// kept.
+fn lower_trapezoid_product(
+    dst: MatMut<'_, f64>,
+    accum: Accum,
+    lhs: MatRef<'_, f64>,
+    rhs: MatRef<'_, f64>,
+    alpha: f64,
+) {
+    let (width, rows) = (dst.ncols(), dst.nrows());
+    let (top, below) = dst.split_at_row_mut(width);
+    triangular::matmul(
+        top,
+        BlockStructure::TriangularLower,
+        accum,
+        lhs.subrows(0, width),
+        BlockStructure::Rectangular,
+        rhs,
+        BlockStructure::Rectangular,
+        alpha,
+        Par::Seq,
+    );
+    matmul(
+        below,
+        accum,
+        lhs.subrows(width, rows - width),
+        rhs,
+        alpha,
+        Par::Seq,
+    );
 }
 
 /// The rows below a supernode's diagonal block times D⁻¹ (its pivots).
