@@ -480,3 +480,51 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
         "{err}"
     );
 }
+
+/// PDAS steps solved with the last factorisation (`switched_steps`, the
+/// bordered system of the constraints switched since it): the shell p1b-p0
+/// at n = 64 from the interior-point start, two threads (the sweeps need
+/// the tree's split), reaches the factorised run's active set and solution
+/// (x to 1e-10, KKT ≤ 1e-10), with as many Newton steps and one
+/// factorisation fewer per switched step.
+#[test]
+fn switched_pdas_steps_reach_the_factorised_solution() {
+    obstacle_fem::linalg::set_threads(2);
+    let mut problem = problem("pipelines/scenes/naghdi-hypar.toml", &["mesh.n=64"]);
+    let mut run = |switched_steps| {
+        let options = SolverOptions::ActiveSet(ActiveSetOptions {
+            cold_start: ColdStart::INTERIOR_POINT,
+            switched_steps,
+            ..Default::default()
+        });
+        solve(&mut problem, &options, &[]).unwrap()
+    };
+    let (switched, factorised) = (run(true), run(false));
+    obstacle_fem::linalg::set_threads(1);
+    let parameter =
+        |r: &SolveReport, name: &str| r.parameters.iter().find(|(n, _)| n == name).unwrap().1;
+    let count = |r: &SolveReport| {
+        (
+            parameter(r, "numeric_factorizations"),
+            parameter(r, "switched_steps"),
+        )
+    };
+    eprintln!(
+        "shell n = 64: (factorisations, switched steps) {:?} against {:?}, KKT {:.1e} / {:.1e}",
+        count(&switched),
+        count(&factorised),
+        switched.measures.kkt,
+        factorised.measures.kkt
+    );
+    for r in [&switched, &factorised] {
+        assert!(r.converged && r.measures.kkt <= 1e-10);
+    }
+    assert_eq!(switched.iterations, factorised.iterations);
+    let (f, s) = count(&switched);
+    assert!(s >= 1.0, "no step was switched");
+    assert_eq!(f + s, switched.iterations as f64);
+    assert_eq!(count(&factorised), (factorised.iterations as f64, 0.0));
+    let active = |r: &SolveReport| r.lambda.iter().map(|&l| l > 0.0).collect::<Vec<_>>();
+    assert_eq!(active(&switched), active(&factorised));
+    assert_same("shell p1b-p0", "switched", &switched, &factorised, 1e-10);
+}

@@ -571,6 +571,71 @@ impl CondensationPlan {
         }
     }
 
+    /// Sparse columns b of A (order n, entries (index, value)) condensed:
+    /// per column b̃ = b_R − A_RI A_II⁻¹ b_I as S entries (ascending, summed)
+    /// and A_II⁻¹ b_I as A entries (ascending). Only the groups a column
+    /// touches are read (a multiplier's row of the constraint touches one
+    /// triangle's bubbles).
+    pub(super) fn condense_sparse(
+        &self,
+        f: &LocalFactors,
+        columns: &[Vec<(usize, f64)>],
+        n: usize,
+    ) -> Vec<CondensedColumn> {
+        let mut schur_index = vec![NONE; n];
+        for (r, &i) in self.remaining.iter().enumerate() {
+            schur_index[i] = r;
+        }
+        let mut group_of = vec![NONE; n];
+        for g in 0..self.groups.len() {
+            for &i in self.groups.group(g) {
+                group_of[i] = g;
+            }
+        }
+        let v = f.transposed_coupling.as_ref();
+        let condense = |column: &Vec<(usize, f64)>| {
+            let (mut remaining, mut interior, mut touched) = (Vec::new(), Vec::new(), Vec::new());
+            for &(i, value) in column {
+                if schur_index[i] != NONE {
+                    remaining.push((schur_index[i], value));
+                } else if group_of[i] != NONE {
+                    touched.push(group_of[i]);
+                }
+            }
+            touched.sort_unstable();
+            touched.dedup();
+            for g in touched {
+                let (indices, boundary) = (self.groups.group(g), self.boundary_of(g));
+                let (p, q) = (indices.len(), boundary.len());
+                let b_i: Vec<f64> = indices
+                    .iter()
+                    .map(|&u| column.iter().filter(|e| e.0 == u).map(|e| e.1).sum())
+                    .collect();
+                let inv = &f.inverse[self.inverse_offsets[g]..self.inverse_offsets[g + 1]];
+                for (l, &u) in indices.iter().enumerate() {
+                    interior.push((u, dot(&inv[l * p..(l + 1) * p], &b_i)));
+                }
+                // (A_RI A_II⁻¹ b_I)_c: V's row c, or W's column c (V = Wᵀ).
+                let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
+                for (c, &r) in boundary.iter().enumerate() {
+                    let term = match v {
+                        Some(v) => dot(&v[range.start + c * p..range.start + (c + 1) * p], &b_i),
+                        None => (0..p)
+                            .map(|l| f.coupling[range.start + l * q + c] * b_i[l])
+                            .sum(),
+                    };
+                    remaining.push((r, -term));
+                }
+            }
+            interior.sort_unstable_by_key(|e| e.0);
+            CondensedColumn {
+                remaining: summed(remaining),
+                interior,
+            }
+        };
+        columns.iter().map(condense).collect()
+    }
+
     /// x from x_R (the solution of S, or Sᵀ) and the original b:
     /// x_I = A_II⁻¹ b_I − W x_R (transposed: A_II⁻ᵀ b_I − Vᵀ x_R), into b.
     /// The groups are independent (each reads its own b_I and x_R): many
@@ -624,6 +689,27 @@ impl CondensationPlan {
             b[i] = x;
         }
     }
+}
+
+/// A sparse column of A condensed ([`CondensationPlan::condense_sparse`]).
+pub(super) struct CondensedColumn {
+    /// b̃ = b_R − A_RI A_II⁻¹ b_I, as (S index, value).
+    pub(super) remaining: Vec<(usize, f64)>,
+    /// A_II⁻¹ b_I, as (A index, value).
+    pub(super) interior: Vec<(usize, f64)>,
+}
+
+/// Entries sorted by index, those of one index summed.
+fn summed(mut entries: Vec<(usize, f64)>) -> Vec<(usize, f64)> {
+    entries.sort_unstable_by_key(|e| e.0);
+    let mut out: Vec<(usize, f64)> = Vec::with_capacity(entries.len());
+    for (i, value) in entries {
+        match out.last_mut() {
+            Some((last, sum)) if *last == i => *sum += value,
+            _ => out.push((i, value)),
+        }
+    }
+    out
 }
 
 /// Unknowns per group at most: a group is one element's interior (the
