@@ -1219,6 +1219,23 @@ mod tests {
         )
     }
 
+    /// [`grid_saddle`]`(k)`, its supernodal AMD analysis and the two
+    /// threads' split of its tree.
+    fn analysed_grid_saddle(
+        k: usize,
+    ) -> (
+        SparseColMat<usize, f64>,
+        usize,
+        SymbolicCholesky<usize>,
+        TreeSchedule,
+    ) {
+        let (a, n_primal) = grid_saddle(k);
+        let symbolic = supernodal_amd(&a);
+        let schedule = TreeSchedule::new(supernodal_part(&symbolic))
+            .expect("parents come after their children");
+        (a, n_primal, symbolic, schedule)
+    }
+
     /// The AMD analysis of `a`, supernodal whatever its size.
     fn supernodal_amd(a: &SparseColMat<usize, f64>) -> SymbolicCholesky<usize> {
         factorize_symbolic_cholesky(
@@ -1256,11 +1273,8 @@ mod tests {
     /// a matrix changed everywhere.
     #[test]
     fn refactorising_the_changed_supernodes_equals_the_whole_factorisation() {
-        let (a, n_primal) = grid_saddle(60);
-        let n = a.nrows();
-        let symbolic = supernodal_amd(&a);
-        let raw = supernodal_part(&symbolic);
-        let schedule = TreeSchedule::new(raw).expect("parents come after their children");
+        let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
+        let (n, raw) = (a.nrows(), supernodal_part(&symbolic));
         let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let regularization = test_regularization(&pattern.signs);
         let ones = vec![1.0; n];
@@ -1322,11 +1336,8 @@ mod tests {
     /// several rows and two sharing a row; beyond the work bound, none.
     #[test]
     fn forward_sweeps_of_sparse_columns_give_their_inverse_products() {
-        let (a, n_primal) = grid_saddle(60);
-        let n = a.nrows();
-        let symbolic = supernodal_amd(&a);
-        let raw = supernodal_part(&symbolic);
-        let schedule = TreeSchedule::new(raw).expect("parents come after their children");
+        let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
+        let (n, raw) = (a.nrows(), supernodal_part(&symbolic));
         let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let entries = pattern.entries(&a, &vec![1.0; n], None).unwrap();
         let regularization = test_regularization(&pattern.signs);
@@ -1372,11 +1383,8 @@ mod tests {
     /// one bin or the top, both bins used; and faer's solve bit for bit.
     #[test]
     fn tree_factorisation_and_solve_equal_faers() {
-        let (a, n_primal) = grid_saddle(60);
-        let n = a.nrows();
-        let symbolic = supernodal_amd(&a);
-        let raw = supernodal_part(&symbolic);
-        let schedule = TreeSchedule::new(raw).expect("parents come after their children");
+        let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
+        let (n, raw) = (a.nrows(), supernodal_part(&symbolic));
         for bin in 0..2u8 {
             assert!(schedule.owner.contains(&bin), "bin {bin} empty");
         }
