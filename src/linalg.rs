@@ -457,18 +457,21 @@ impl CondensedFactorization {
         let Factorization::Ldlt(schur) = &self.schur else {
             return None;
         };
-        let condensed = self.plan.condense_sparse(&self.local, columns, n);
-        let remaining: Vec<Vec<(usize, f64)>> =
-            condensed.iter().map(|c| c.remaining.clone()).collect();
+        let (remaining, interior): (Vec<_>, Vec<_>) = self
+            .plan
+            .condense_sparse(&self.local, columns, n)
+            .into_iter()
+            .map(|c| (c.remaining, c.interior))
+            .unzip();
         let mut gram = schur.gram(&remaining, solves)?;
         let r = columns.len();
-        for (q, column_q) in condensed.iter().enumerate() {
+        for (q, interior_q) in interior.iter().enumerate() {
             for (p, column_p) in columns.iter().enumerate() {
                 gram[p + q * r] += column_p
                     .iter()
                     .filter_map(|&(i, v)| {
-                        let k = column_q.interior.binary_search_by_key(&i, |e| e.0).ok()?;
-                        Some(v * column_q.interior[k].1)
+                        let k = interior_q.binary_search_by_key(&i, |e| e.0).ok()?;
+                        Some(v * interior_q[k].1)
                     })
                     .sum::<f64>();
             }

@@ -547,24 +547,40 @@ impl CondensationPlan {
         let v = f.transposed_coupling.as_ref().filter(|_| !transpose);
         let mut b_i = [0.0; MAX_INLINE];
         for g in groups {
-            let (interior, boundary) = (self.groups.group(g), self.boundary_of(g));
-            let (p, q) = (interior.len(), boundary.len());
-            if q == 0 {
+            let interior = self.groups.group(g);
+            if self.boundary_of(g).is_empty() {
                 continue; // a triangle whose vertices are all fixed
             }
-            let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
             let b_i = gather(interior, b, &mut b_i);
-            match v {
-                Some(v) => {
-                    for (row, &s) in v[range].chunks_exact(p).zip(boundary) {
-                        rhs[s] -= dot(row, b_i);
-                    }
+            self.interior_terms(f, v, g, b_i, |s, term| rhs[s] -= term);
+        }
+    }
+
+    /// The terms of (A_RI A_II⁻¹ b_I) of group g, as `each(S index, term)`:
+    /// one per boundary unknown from V's rows (`v`: V, q×p row-major, of a
+    /// non-symmetric A), else one per interior and boundary unknown from W
+    /// (p×q row-major, V = Wᵀ), each row of W in turn.
+    fn interior_terms(
+        &self,
+        f: &LocalFactors,
+        v: Option<&Vec<f64>>,
+        g: usize,
+        b_i: &[f64],
+        mut each: impl FnMut(usize, f64),
+    ) {
+        let boundary = self.boundary_of(g);
+        let (p, q) = (self.groups.group(g).len(), boundary.len());
+        let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
+        match v {
+            Some(v) => {
+                for (row, &s) in v[range].chunks_exact(p).zip(boundary) {
+                    each(s, dot(row, b_i));
                 }
-                None => {
-                    for (row, &bi) in f.coupling[range].chunks_exact(q).zip(b_i) {
-                        for (&w, &s) in row.iter().zip(boundary) {
-                            rhs[s] -= w * bi;
-                        }
+            }
+            None => {
+                for (row, &bi) in f.coupling[range].chunks_exact(q).zip(b_i) {
+                    for (&w, &s) in row.iter().zip(boundary) {
+                        each(s, w * bi);
                     }
                 }
             }
@@ -605,8 +621,8 @@ impl CondensationPlan {
             touched.sort_unstable();
             touched.dedup();
             for g in touched {
-                let (indices, boundary) = (self.groups.group(g), self.boundary_of(g));
-                let (p, q) = (indices.len(), boundary.len());
+                let indices = self.groups.group(g);
+                let p = indices.len();
                 let b_i: Vec<f64> = indices
                     .iter()
                     .map(|&u| column.iter().filter(|e| e.0 == u).map(|e| e.1).sum())
@@ -615,17 +631,7 @@ impl CondensationPlan {
                 for (l, &u) in indices.iter().enumerate() {
                     interior.push((u, dot(&inv[l * p..(l + 1) * p], &b_i)));
                 }
-                // (A_RI A_II⁻¹ b_I)_c: V's row c, or W's column c (V = Wᵀ).
-                let range = self.coupling_offsets[g]..self.coupling_offsets[g + 1];
-                for (c, &r) in boundary.iter().enumerate() {
-                    let term = match v {
-                        Some(v) => dot(&v[range.start + c * p..range.start + (c + 1) * p], &b_i),
-                        None => (0..p)
-                            .map(|l| f.coupling[range.start + l * q + c] * b_i[l])
-                            .sum(),
-                    };
-                    remaining.push((r, -term));
-                }
+                self.interior_terms(f, v, g, &b_i, |r, term| remaining.push((r, -term)));
             }
             interior.sort_unstable_by_key(|e| e.0);
             CondensedColumn {

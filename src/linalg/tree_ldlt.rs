@@ -1006,18 +1006,13 @@ pub fn forward_gram(
         }
         let supernode = Supernode::of(symbolic, values, s);
         let w = supernode.l.ncols();
-        let (diagonal, below) = supernode.l.split_at_row(w);
+        // X_s ← L_s⁻¹ X_s, and L_below X_s for the ancestors.
         let mut x = std::mem::take(&mut blocks[s]);
-        solve_unit_lower_triangular_in_place_with_conj(
-            diagonal,
-            Conj::No,
-            MatMut::from_column_major_slice_mut(&mut x, w, k),
-            Par::Seq,
-        );
-        let x = MatRef::from_column_major_slice(&x, w, k);
+        supernode.forward(&mut x, &mut below_x);
         // G += X_sᵀ D_s⁻¹ X_s on the reaching columns.
-        through_d.clear();
-        through_d.extend((0..k).flat_map(|p| (0..w).map(move |i| x[(i, p)] / diagonal[(i, i)])));
+        through_d.clone_from(&x);
+        supernode.divide_by_d(&mut through_d);
+        let x = MatRef::from_column_major_slice(&x, w, k);
         product.clear();
         product.resize(k * k, 0.0);
         matmul(
@@ -1035,20 +1030,7 @@ pub fn forward_gram(
         }
         // The rows below: −L_below X_s into the ancestors' blocks. The
         // pattern is ascending, so each ancestor's rows are one run.
-        let n_below = below.nrows();
-        if n_below == 0 {
-            continue;
-        }
-        below_x.clear();
-        below_x.resize(n_below * k, 0.0);
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut below_x, n_below, k),
-            Accum::Replace,
-            below,
-            x,
-            1.0,
-            Par::Seq,
-        );
+        let n_below = supernode.pattern.len();
         let mut run_start = 0;
         while run_start < n_below {
             let a = schedule.supernode_of[supernode.pattern[run_start]];
@@ -1119,14 +1101,16 @@ impl<'a> Supernode<'a> {
         }
     }
 
-    /// x_s ← L_s⁻¹ x_s and tmp ← L_below x_s (faer's forward step).
+    /// x_s ← L_s⁻¹ x_s and tmp ← L_below x_s (faer's forward step), for
+    /// the columns x_s holds (column-major, the supernode's width each).
     fn forward(&self, x_s: &mut [f64], tmp: &mut Vec<f64>) {
         let ncols = self.l.ncols();
+        let k = x_s.len() / ncols;
         let (diagonal, below) = self.l.split_at_row(ncols);
-        let mut x_s = MatMut::from_column_major_slice_mut(x_s, ncols, 1);
+        let mut x_s = MatMut::from_column_major_slice_mut(x_s, ncols, k);
         solve_unit_lower_triangular_in_place_with_conj(diagonal, Conj::No, x_s.rb_mut(), Par::Seq);
-        tmp.resize(below.nrows(), 0.0);
-        let product = MatMut::from_column_major_slice_mut(&mut tmp[..], below.nrows(), 1);
+        tmp.resize(below.nrows() * k, 0.0);
+        let product = MatMut::from_column_major_slice_mut(&mut tmp[..], below.nrows(), k);
         matmul_with_conj(
             product,
             Accum::Replace,
@@ -1139,10 +1123,13 @@ impl<'a> Supernode<'a> {
         );
     }
 
-    /// x_s ← D⁻¹ x_s, as faer multiplies by each pivot's reciprocal.
+    /// x_s ← D⁻¹ x_s, as faer multiplies by each pivot's reciprocal, for
+    /// the columns x_s holds.
     fn divide_by_d(&self, x_s: &mut [f64]) {
-        for (k, v) in x_s.iter_mut().enumerate() {
-            *v *= self.l[(k, k)].recip();
+        for column in x_s.chunks_exact_mut(self.l.ncols()) {
+            for (k, v) in column.iter_mut().enumerate() {
+                *v *= self.l[(k, k)].recip();
+            }
         }
     }
 
