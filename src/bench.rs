@@ -21,7 +21,9 @@
 //!   *estimate* of the iterations still needed (shown separately). A looser
 //!   tolerance is read from the same run when the KKT measure first falls
 //!   below it at the last iteration (same run, same numbers); otherwise it
-//!   is run on its own (the iterations are then known). A method capped at
+//!   is run on its own (the iterations are then known). Such a re-run of
+//!   the active set that ends inside its interior-point start is marked †:
+//!   its iterate meets the measure but is interior, not complementary. A method capped at
 //!   one level is not run at the finer ones (`>cap`, times grow with n).
 //!   A hard kill at 3·cap + 120 s guards against a bad calibration.
 //!
@@ -236,6 +238,10 @@ pub fn run_case(
         f.push(("converged".into(), s.converged.to_string()));
         f.push(("stop".into(), s.stop_reason.clone()));
         f.push(("kkt".into(), format!("{:e}", s.measures.kkt)));
+        f.push((
+            "interior_iterate".into(),
+            s.ended_in_interior_point().to_string(),
+        ));
         f.push(("seconds".into(), format!("{:e}", s.solver_seconds)));
         f.push(("factor_seconds".into(), format!("{:e}", s.factor_seconds)));
         for (phase, mb) in &s.peak_rss_mb {
@@ -324,6 +330,10 @@ pub struct BenchRow {
     pub floor_seconds: f64,
     /// Capped runs: estimated seconds to the tolerance (linear rate of the KKT history).
     pub estimate_seconds: Option<f64>,
+    /// The run ended inside the interior-point start: its answer is an
+    /// interior iterate, not a complementary pair
+    /// ([`crate::pipeline::RunSummary::ended_in_interior_point`]).
+    pub interior: bool,
     pub note: String,
 }
 
@@ -588,6 +598,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
                     total_seconds: num(f, "total_seconds"),
                     peak_rss_mb: num(f, "peak_rss_kb") / 1024.0,
                     kkt: num(f, "kkt"),
+                    interior: f.get("interior_iterate").map(String::as_str) == Some("true"),
                     ..row0.clone()
                 };
                 if !converged && m.skip_after_cap {
@@ -688,6 +699,9 @@ fn fmt_time(r: &BenchRow) -> String {
     }
 }
 
+/// Marks the iterations of a run that ended inside the interior-point start.
+const INTERIOR_MARK: &str = "†";
+
 /// The table: one row per (problem, level, method), the tolerances side by side.
 pub fn bench_markdown(
     cfg: &BenchConfig,
@@ -737,10 +751,10 @@ pub fn bench_markdown(
             let mut line = vec![prob.clone(), level.clone(), dofs.to_string(), m.clone()];
             for r in &cells {
                 line.push(r.iterations.map_or("–".into(), |k| {
-                    if r.status == "converged" {
-                        k.to_string()
-                    } else {
-                        format!(">{k}")
+                    match (r.status == "converged", r.interior) {
+                        (true, false) => k.to_string(),
+                        (true, true) => format!("{k}{INTERIOR_MARK}"),
+                        (false, _) => format!(">{k}"),
                     }
                 }));
                 line.push(fmt_time(r));
@@ -766,6 +780,12 @@ pub fn bench_markdown(
             );
             let _ = writeln!(md, "| {} |", line.join(" | "));
         }
+    }
+    if rows.iter().any(|r| r.interior) {
+        let _ = writeln!(
+            md,
+            "\n{INTERIOR_MARK}: the run (a re-run with `max_iter` at the step where the tightest run first met this tolerance) ended inside the active set's interior-point start: its iterate meets the tolerance by the KKT measure but is interior (λ > 0 on every constraint), not a complementary pair, whose finish takes the tighter run's PDAS steps (docs/work-precision.md)."
+        );
     }
     md.push_str(&targets(cfg, rows));
     md
@@ -914,7 +934,12 @@ pub fn bench_csv(rows: &[BenchRow]) -> String {
             r.seconds / r.floor_seconds,
             r.estimate_seconds
                 .map_or(String::new(), |e| format!("{e:e}")),
-            r.note.replace(',', ";")
+            match r.interior {
+                true => format!("interior iterate {}", r.note)
+                    .trim_end()
+                    .replace(',', ";"),
+                false => r.note.replace(',', ";"),
+            }
         );
     }
     csv

@@ -61,6 +61,9 @@ pub struct RunSummary {
     /// solve (nested levels and factorisations included); the `/solver`
     /// attributes `peak_rss_mb_<phase>`. Empty where /proc cannot be read.
     pub peak_rss_mb: Vec<(String, f64)>,
+    /// The active set's interior-point steps (`/solver`
+    /// `interior_point_steps`); None for the other methods.
+    pub interior_point_steps: Option<usize>,
     pub result_file: PathBuf,
 }
 
@@ -101,8 +104,18 @@ impl RunSummary {
             solve_seconds: report.wall_seconds - report.factor_seconds,
             wall_seconds: start.elapsed().as_secs_f64(),
             peak_rss_mb: peak_rss_of(&data.solver_attrs),
+            interior_point_steps: interior_point_steps(&data.solver_attrs),
             result_file: out.to_path_buf(),
         }
+    }
+
+    /// Whether the run ended inside the active set's interior-point start
+    /// (`max_iter` there, as the bench's re-runs to a looser tolerance do):
+    /// its (x, λ) is then an interior iterate, every λ_i > 0, which meets
+    /// the KKT measure but is no complementary pair (docs/work-precision.md,
+    /// "Where an interior-point step's time goes").
+    pub fn ended_in_interior_point(&self) -> bool {
+        matches!(self.interior_point_steps, Some(k) if k >= 1 && k + 1 == self.iterations)
     }
 
     /// A numeric root attribute of the result, by name.
@@ -216,12 +229,18 @@ impl RunSummary {
             solver_seconds,
             factor_seconds,
             peak_rss_mb: peak_rss_of(solver),
+            interior_point_steps: interior_point_steps(solver),
             solve_seconds: solver_seconds - factor_seconds,
             wall_seconds: number(solver, "/solver", RUN_SECONDS)?,
             result_file: path.to_path_buf(),
             algorithm,
         })
     }
+}
+
+/// `/solver` `interior_point_steps` (the active set's), if present.
+fn interior_point_steps(solver: &[(String, AttrValue)]) -> Option<usize> {
+    numeric_attr(solver, "interior_point_steps").map(|k| k as usize)
 }
 
 /// The `/solver` attribute with the run's wall time up to writing its result.

@@ -44,6 +44,32 @@ fn bench_runs_on_tiny_meshes() {
     }
 }
 
+/// A run that `max_iter` ends inside the active set's interior-point start
+/// (as the bench's re-runs to a looser tolerance do) is marked
+/// `interior_iterate` in its BENCH line, the table marks its iterations
+/// with a dagger; a run that PDAS finishes is not marked.
+#[test]
+fn a_run_ended_inside_the_interior_point_is_marked() {
+    for (max_iter, interior) in [(4, true), (50, false)] {
+        let dir = tempfile::tempdir().unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_obstacle"))
+            .args(["bench", "case", "pipelines/scenes/naghdi-hypar.toml"])
+            .args(["--set", "solver.method=active-set", "--set"])
+            .arg(format!("solver.max_iter={max_iter}"))
+            .args(["--set", "output.plots=[]", "--out"])
+            .arg(dir.path().join("shell.h5"))
+            .env("CI", "1")
+            .output()
+            .expect("the obstacle binary runs");
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{out}");
+        assert!(
+            out.contains(&format!("interior_iterate={interior}")),
+            "max_iter {max_iter}: {out}"
+        );
+    }
+}
+
 #[test]
 fn extrapolation_of_a_linear_rate() {
     // kkt_k = 0.5^k: 1e-6 is reached at k = log2(1e6) ≈ 19.93.
