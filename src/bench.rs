@@ -23,8 +23,9 @@
 //!   below it at the last iteration (same run, same numbers); otherwise it
 //!   is run on its own (the iterations are then known). Such a re-run of
 //!   the active set that ends inside its interior-point start is marked †:
-//!   its iterate meets the measure but is interior, not complementary. A method capped at
-//!   one level is not run at the finer ones (`>cap`, times grow with n).
+//!   its iterate meets the measure but is interior, not complementary. A
+//!   method capped at one level is not run at the finer ones (`>cap`,
+//!   times grow with n).
 //!   A hard kill at 3·cap + 120 s guards against a bad calibration.
 //!
 //! * `obstacle bench study …` (`make study`): work–precision. Runs study

@@ -45,9 +45,9 @@ fn bench_runs_on_tiny_meshes() {
 }
 
 /// A run that `max_iter` ends inside the active set's interior-point start
-/// (as the bench's re-runs to a looser tolerance do) is marked
-/// `interior_iterate` in its BENCH line, the table marks its iterations
-/// with a dagger; a run that PDAS finishes is not marked.
+/// (as the bench's re-runs to a looser tolerance do) says so in its BENCH
+/// line (`interior_iterate`, which the table shows as †); a run that PDAS
+/// finishes does not.
 #[test]
 fn a_run_ended_inside_the_interior_point_is_marked() {
     for (max_iter, interior) in [(4, true), (50, false)] {
