@@ -82,6 +82,17 @@ fn relative(a: &[f64], b: &[f64]) -> f64 {
         / scale
 }
 
+/// The constraints with λ_i > 0: a contact solve's active set.
+fn in_contact(r: &SolveReport) -> Vec<bool> {
+    r.lambda.iter().map(|&l| l > 0.0).collect()
+}
+
+/// A reported parameter, which the method must report.
+fn parameter(r: &SolveReport, name: &str) -> f64 {
+    r.parameter(name)
+        .unwrap_or_else(|| panic!("{}: no parameter {name}", r.algorithm))
+}
+
 /// Both runs' x and λ agree to `tol` (relative max norm), after the same
 /// number of iterations.
 fn assert_same(label: &str, method: &str, with: &SolveReport, without: &SolveReport, tol: f64) {
@@ -242,11 +253,12 @@ fn active_set_gives_the_same_active_set_and_solution_condensed() {
             with.iterations, without.iterations
         );
         assert!(with.converged && without.converged, "{label}");
-        let active = |r: &SolveReport| r.lambda.iter().map(|&l| l > 0.0).collect::<Vec<_>>();
-        assert_eq!(active(&with), active(&without), "{label}: active sets");
+        assert_eq!(
+            in_contact(&with),
+            in_contact(&without),
+            "{label}: active sets"
+        );
         assert_same(label, "active-set", &with, &without, 1e-10);
-        let parameter =
-            |r: &SolveReport, name: &str| r.parameters.iter().find(|(n, _)| n == name).unwrap().1;
         assert_eq!(parameter(&with, "symbolic_analyses"), 1.0, "{label}");
         assert_eq!(
             parameter(&with, "numeric_factorizations"),
@@ -501,8 +513,6 @@ fn switched_pdas_steps_reach_the_factorised_solution() {
     };
     let (switched, factorised) = (run(true), run(false));
     obstacle_fem::linalg::set_threads(1);
-    let parameter =
-        |r: &SolveReport, name: &str| r.parameters.iter().find(|(n, _)| n == name).unwrap().1;
     let count = |r: &SolveReport| {
         (
             parameter(r, "numeric_factorizations"),
@@ -524,7 +534,6 @@ fn switched_pdas_steps_reach_the_factorised_solution() {
     assert!(s >= 1.0, "no step was switched");
     assert_eq!(f + s, switched.iterations as f64);
     assert_eq!(count(&factorised), (factorised.iterations as f64, 0.0));
-    let active = |r: &SolveReport| r.lambda.iter().map(|&l| l > 0.0).collect::<Vec<_>>();
-    assert_eq!(active(&switched), active(&factorised));
+    assert_eq!(in_contact(&switched), in_contact(&factorised));
     assert_same("shell p1b-p0", "switched", &switched, &factorised, 1e-10);
 }

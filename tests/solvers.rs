@@ -88,11 +88,8 @@ fn hypar(n: usize, rho: f64) -> (Mesh, ContactProblem, DofNumbering) {
 
 fn parameter(report: &SolveReport, name: &str) -> f64 {
     report
-        .parameters
-        .iter()
-        .find(|(n, _)| n == name)
+        .parameter(name)
         .unwrap_or_else(|| panic!("{}: no parameter {name}", report.algorithm))
-        .1
 }
 
 fn print(case: &str, r: &SolveReport) {

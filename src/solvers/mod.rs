@@ -201,6 +201,14 @@ pub struct SolveReport {
 }
 
 impl SolveReport {
+    /// The named scalar parameter (`parameters`), if the method reports it.
+    pub fn parameter(&self, name: &str) -> Option<f64> {
+        self.parameters
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|&(_, v)| v)
+    }
+
     /// ‖λ^k − λ^{k−1}‖ of the last iteration (the thesis criterion); 0 without iterations.
     pub fn last_dual_step(&self) -> f64 {
         self.history
