@@ -91,7 +91,7 @@
 //! the rule's set at the step's affine-scaling point, PDAS continues from that set,
 //! nearly exact: one to four steps. Like every step, an interior-point
 //! step changes the multiplier diagonal only (see above). Measured on the
-//! thesis shell (tol 1e-10; 1e-8 at n ≥ 256): 8, 11, 13, 14, 16, 16 Newton
+//! thesis shell (tol 1e-10; 1e-8 at n = 512): 8, 11, 13, 14, 16, 15 Newton
 //! solves at n = 16, 32, 64, 128, 256, 512 against the depth bisection's 7,
 //! 10, 13, 20, 38, 61 — the interior-point count does not grow with n.
 //!
