@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::fixed_uzawa_options;
+use common::{fixed_uzawa_options, parameter};
 use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::linalg::{
     factorize_checked, factorize_checked_with, Changed, InteriorGroups, MatrixKind,
@@ -85,12 +85,6 @@ fn relative(a: &[f64], b: &[f64]) -> f64 {
 /// The constraints with λ_i > 0: a contact solve's active set.
 fn in_contact(r: &SolveReport) -> Vec<bool> {
     r.lambda.iter().map(|&l| l > 0.0).collect()
-}
-
-/// A reported parameter, which the method must report.
-fn parameter(r: &SolveReport, name: &str) -> f64 {
-    r.parameter(name)
-        .unwrap_or_else(|| panic!("{}: no parameter {name}", r.algorithm))
 }
 
 /// Both runs' x and λ agree to `tol` (relative max norm), after the same

@@ -8,6 +8,9 @@
 //!
 //! Measured figures are printed with eprintln (run with `--nocapture`).
 
+mod common;
+
+use common::parameter;
 use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
@@ -84,12 +87,6 @@ fn hypar(n: usize, rho: f64) -> (Mesh, ContactProblem, DofNumbering) {
     let (problem, numbering) =
         assemble_shell(&mesh, &chart, &MATERIAL, rho, [0.0, 0.0, -0.25], None);
     (mesh, problem, numbering)
-}
-
-fn parameter(report: &SolveReport, name: &str) -> f64 {
-    report
-        .parameter(name)
-        .unwrap_or_else(|| panic!("{}: no parameter {name}", report.algorithm))
 }
 
 fn print(case: &str, r: &SolveReport) {

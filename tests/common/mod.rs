@@ -417,3 +417,11 @@ pub fn fixed_uzawa_options(
         initial_lambda: None,
     }
 }
+
+/// A parameter the solve reported (`SolveReport::parameter`), which the
+/// method must report: a missing one fails the test, naming it.
+pub fn parameter(report: &obstacle_fem::solvers::SolveReport, name: &str) -> f64 {
+    report
+        .parameter(name)
+        .unwrap_or_else(|| panic!("{}: no parameter {name}", report.algorithm))
+}
