@@ -2234,8 +2234,9 @@ fn ruiz_equilibration(
 /// fraction of a whole factorisation (in its multiply–adds): a bordered
 /// solve then beats a new factorisation.
 const GRAM_BUDGET: f64 = 0.5;
-/// The sweep runs on one thread where the factorisation runs on two.
-const GRAM_ONE_THREAD: f64 = 2.0;
+/// The factorisation's work runs on two threads; the sweep's estimate is
+/// already its time on two (`tree_ldlt::forward_gram`).
+const FACTORISATION_THREADS: f64 = 2.0;
 /// A one-column solve's cost per factor entry, in the factorisation's
 /// multiply–adds: it reads the factor once (memory-bound). Measured on
 /// this machine (AMD EPYC, AVX2): 15 for the shell at n = 64 (4 solves ≈
@@ -2693,7 +2694,7 @@ impl RegularizedLdlt {
             })
             .collect();
         let solve_work = solves as f64 * SOLVE_WORK_PER_ENTRY * self.values.len() as f64;
-        let max_work = (GRAM_BUDGET * schedule.whole_work() - solve_work) / GRAM_ONE_THREAD;
+        let max_work = (GRAM_BUDGET * schedule.whole_work() - solve_work) / FACTORISATION_THREADS;
         tree_ldlt::forward_gram(raw, &self.values, schedule, &ordered, max_work)
     }
 

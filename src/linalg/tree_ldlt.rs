@@ -941,9 +941,12 @@ pub fn solve_in_place(
 /// on the paths from its rows to the root, so each supernode sweeps the
 /// block of the columns that reach it (one triangular solve and one
 /// product for all of them): the work is the paths', not the whole
-/// factor's. `None` when that work, estimated before any, exceeds
-/// `max_work` (in the units of the factorisation's own estimate, its
-/// multiply–adds). Returns G r × r, column-major.
+/// factor's. The two threads' subtrees sweep apart, then each top
+/// supernode splits its columns between the threads. `None` when that
+/// work, estimated before any as the time of the two threads (the larger
+/// subtree bin and half the top), exceeds `max_work` (in the units of the
+/// factorisation's own estimate, its multiply–adds). Returns G r × r,
+/// column-major.
 pub fn forward_gram(
     symbolic: &SymbolicSupernodalCholesky<usize>,
     values: &[f64],
@@ -951,98 +954,243 @@ pub fn forward_gram(
     columns: &[Vec<(usize, f64)>],
     max_work: f64,
 ) -> Option<Vec<f64>> {
-    let r = columns.len();
-    let n_super = symbolic.n_supernodes();
-    let (begin, end) = (symbolic.supernode_begin(), symbolic.supernode_end());
-    // The columns reaching each supernode, ascending (c runs ascending).
-    let mut reaching: Vec<Vec<usize>> = vec![Vec::new(); n_super];
-    let mut mark = vec![usize::MAX; n_super];
-    for (c, column) in columns.iter().enumerate() {
-        for &(row, _) in column {
-            let mut s = schedule.supernode_of[row];
-            while s != usize::MAX && mark[s] != c {
-                mark[s] = c;
-                reaching[s].push(c);
-                s = schedule.parent[s];
+    GramSweep::new(symbolic, values, schedule, columns).run(max_work, GRAM_SPLIT_MIN_WORK)
+}
+
+/// A top supernode's sweep splits its columns between the two threads
+/// from this many multiply–adds on (below it a thread costs more than it
+/// saves).
+const GRAM_SPLIT_MIN_WORK: f64 = 1e6;
+
+/// The columns of a Gram sweep and the supernodes each reaches.
+struct GramSweep<'a> {
+    symbolic: &'a SymbolicSupernodalCholesky<usize>,
+    values: &'a [f64],
+    schedule: &'a TreeSchedule,
+    columns: &'a [Vec<(usize, f64)>],
+    /// The columns reaching each supernode, ascending.
+    reaching: Vec<Vec<usize>>,
+}
+
+/// One thread's view of the supernodes' column blocks (its w rows × k
+/// reaching columns each, column-major; empty until written), its part of
+/// G, and the sweep's buffers.
+struct GramBlocks {
+    blocks: Vec<Vec<f64>>,
+    gram: Vec<f64>,
+    below_x: Vec<f64>,
+    through_d: Vec<f64>,
+    product: Vec<f64>,
+}
+
+impl<'a> GramSweep<'a> {
+    fn new(
+        symbolic: &'a SymbolicSupernodalCholesky<usize>,
+        values: &'a [f64],
+        schedule: &'a TreeSchedule,
+        columns: &'a [Vec<(usize, f64)>],
+    ) -> Self {
+        let n_super = symbolic.n_supernodes();
+        let mut reaching: Vec<Vec<usize>> = vec![Vec::new(); n_super];
+        let mut mark = vec![usize::MAX; n_super];
+        for (c, column) in columns.iter().enumerate() {
+            for &(row, _) in column {
+                let mut s = schedule.supernode_of[row];
+                while s != usize::MAX && mark[s] != c {
+                    mark[s] = c;
+                    reaching[s].push(c);
+                    s = schedule.parent[s];
+                }
+            }
+        }
+        GramSweep {
+            symbolic,
+            values,
+            schedule,
+            columns,
+            reaching,
+        }
+    }
+
+    fn width(&self, s: usize) -> usize {
+        self.symbolic.supernode_end()[s] - self.symbolic.supernode_begin()[s]
+    }
+
+    /// Supernode s's multiply–adds for its k reaching columns: the
+    /// triangular solve and the product below (k w (w + below)), and the
+    /// k × k products through D (k² w).
+    fn work(&self, s: usize) -> f64 {
+        let pattern_ptr = self.symbolic.col_ptr_for_row_idx();
+        let (k, w) = (self.reaching[s].len() as f64, self.width(s) as f64);
+        let below = (pattern_ptr[s + 1] - pattern_ptr[s]) as f64;
+        k * w * (w + below + k)
+    }
+
+    /// Column c's place among those reaching supernode s.
+    fn slot(&self, s: usize, c: usize) -> usize {
+        self.reaching[s]
+            .binary_search(&c)
+            .expect("a column reaches every ancestor of its rows")
+    }
+
+    fn run(&self, max_work: f64, split_min_work: f64) -> Option<Vec<f64>> {
+        let (r, n_super) = (self.columns.len(), self.reaching.len());
+        let owner = &self.schedule.owner;
+        let (mut bin_work, mut top_work) = ([0.0f64; 2], 0.0);
+        for s in 0..n_super {
+            match owner[s] {
+                TOP => top_work += self.work(s),
+                bin => bin_work[bin as usize] += self.work(s),
+            }
+        }
+        if bin_work[0].max(bin_work[1]) + top_work / 2.0 > max_work {
+            return None;
+        }
+        // B's entries into the blocks of the supernodes holding their rows.
+        let begin = self.symbolic.supernode_begin();
+        let empty = || GramBlocks {
+            blocks: vec![Vec::new(); n_super],
+            gram: vec![0.0; r * r],
+            below_x: Vec::new(),
+            through_d: Vec::new(),
+            product: Vec::new(),
+        };
+        let (mut top, mut bins) = (empty(), [empty(), empty()]);
+        for (c, column) in self.columns.iter().enumerate() {
+            for &(row, v) in column {
+                let s = self.schedule.supernode_of[row];
+                let own = match owner[s] {
+                    TOP => &mut top,
+                    bin => &mut bins[bin as usize],
+                };
+                let slot = self.slot(s, c);
+                self.block(&mut own.blocks, s)[row - begin[s] + slot * self.width(s)] += v;
+            }
+        }
+        // The subtrees on a thread each; what they send to the top is
+        // summed into its blocks after.
+        let [mut first, mut second] = bins;
+        std::thread::scope(|scope| {
+            scope.spawn(|| self.sweep_bin(1, &mut second));
+            self.sweep_bin(0, &mut first);
+        });
+        for bin in [first, second] {
+            for (s, block) in bin.blocks.into_iter().enumerate() {
+                if owner[s] == TOP && !block.is_empty() {
+                    let target = self.block(&mut top.blocks, s);
+                    target.iter_mut().zip(&block).for_each(|(t, b)| *t += b);
+                }
+            }
+            top.gram
+                .iter_mut()
+                .zip(&bin.gram)
+                .for_each(|(g, b)| *g += b);
+        }
+        for &s in &self.schedule.top {
+            let parts = match self.work(s) >= split_min_work {
+                true => 2,
+                false => 1,
+            };
+            self.sweep(s, &mut top, parts);
+        }
+        Some(top.gram)
+    }
+
+    /// Supernode s's block in `blocks`, zero-filled at first use.
+    fn block<'b>(&self, blocks: &'b mut [Vec<f64>], s: usize) -> &'b mut Vec<f64> {
+        let block = &mut blocks[s];
+        if block.is_empty() {
+            block.resize(self.width(s) * self.reaching[s].len(), 0.0);
+        }
+        block
+    }
+
+    /// The supernodes of subtree bin `bin`, ascending (descendants first).
+    fn sweep_bin(&self, bin: u8, own: &mut GramBlocks) {
+        for s in 0..self.reaching.len() {
+            if self.schedule.owner[s] == bin {
+                self.sweep(s, own, 1);
             }
         }
     }
-    // Per supernode of w columns and w + below rows reached by k columns:
-    // the triangular solve and the product below (k w (w + below)), and
-    // the k × k products through D (k² w).
-    let pattern_ptr = symbolic.col_ptr_for_row_idx();
-    let work: f64 = (0..n_super)
-        .map(|s| {
-            let (k, w) = (reaching[s].len() as f64, (end[s] - begin[s]) as f64);
-            let below = (pattern_ptr[s + 1] - pattern_ptr[s]) as f64;
-            k * w * (w + below + k)
-        })
-        .sum();
-    if work > max_work {
-        return None;
-    }
-    // Each supernode's block of the reaching columns (its w rows × k).
-    let width = |s: usize| end[s] - begin[s];
-    let mut blocks: Vec<Vec<f64>> = (0..n_super)
-        .map(|s| vec![0.0; width(s) * reaching[s].len()])
-        .collect();
-    let slot = |s: usize, c: usize| {
-        reaching[s]
-            .binary_search(&c)
-            .expect("a column reaches every ancestor of its rows")
-    };
-    for (c, column) in columns.iter().enumerate() {
-        for &(row, v) in column {
-            let s = schedule.supernode_of[row];
-            blocks[s][row - begin[s] + slot(s, c) * width(s)] += v;
-        }
-    }
-    let mut gram = vec![0.0; r * r];
-    let (mut through_d, mut product, mut below_x) = (Vec::new(), Vec::new(), Vec::new());
-    for s in 0..n_super {
-        let k = reaching[s].len();
+
+    /// Supernode s: X_s ← L_s⁻¹ X_s, G += X_sᵀ D_s⁻¹ X_s on its reaching
+    /// columns, and −L_below X_s into its ancestors' blocks; the columns
+    /// split into `parts` (1 or 2) solved on a thread each.
+    fn sweep(&self, s: usize, own: &mut GramBlocks, parts: usize) {
+        let k = self.reaching[s].len();
         if k == 0 {
-            continue;
+            return;
         }
-        let supernode = Supernode::of(symbolic, values, s);
-        let w = supernode.l.ncols();
-        // X_s ← L_s⁻¹ X_s, and L_below X_s for the ancestors.
-        let mut x = std::mem::take(&mut blocks[s]);
-        supernode.forward(&mut x, &mut below_x);
-        // G += X_sᵀ D_s⁻¹ X_s on the reaching columns.
+        let supernode = Supernode::of(self.symbolic, self.values, s);
+        let (w, n_below) = (supernode.l.ncols(), supernode.pattern.len());
+        let mut x = std::mem::take(self.block(&mut own.blocks, s));
+        let GramBlocks {
+            blocks,
+            gram,
+            below_x,
+            through_d,
+            product,
+        } = own;
+        below_x.resize(n_below * k, 0.0);
+        let half = match parts {
+            2 if k >= 2 => k / 2,
+            _ => k,
+        };
+        let (x_first, x_second) = x.split_at_mut(w * half);
+        let (below_first, below_second) = below_x.split_at_mut(n_below * half);
+        if half == k {
+            supernode.forward_into(x_first, below_first);
+        } else {
+            std::thread::scope(|scope| {
+                scope.spawn(|| supernode.forward_into(x_second, below_second));
+                supernode.forward_into(x_first, below_first);
+            });
+        }
         through_d.clone_from(&x);
-        supernode.divide_by_d(&mut through_d);
+        supernode.divide_by_d(through_d);
         let x = MatRef::from_column_major_slice(&x, w, k);
-        product.clear();
+        let gram_columns = |product: &mut [f64], from: usize, to: usize| {
+            matmul(
+                MatMut::from_column_major_slice_mut(product, k, to - from),
+                Accum::Replace,
+                x.transpose(),
+                MatRef::from_column_major_slice(&through_d[w * from..w * to], w, to - from),
+                1.0,
+                Par::Seq,
+            )
+        };
         product.resize(k * k, 0.0);
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut product, k, k),
-            Accum::Replace,
-            x.transpose(),
-            MatRef::from_column_major_slice(&through_d, w, k),
-            1.0,
-            Par::Seq,
-        );
-        for (q, &cq) in reaching[s].iter().enumerate() {
-            for (p, &cp) in reaching[s].iter().enumerate() {
+        if half == k {
+            gram_columns(product, 0, k);
+        } else {
+            let (p_first, p_second) = product.split_at_mut(k * half);
+            std::thread::scope(|scope| {
+                scope.spawn(|| gram_columns(p_second, half, k));
+                gram_columns(p_first, 0, half);
+            });
+        }
+        let r = self.columns.len();
+        for (q, &cq) in self.reaching[s].iter().enumerate() {
+            for (p, &cp) in self.reaching[s].iter().enumerate() {
                 gram[cp + cq * r] += product[p + q * k];
             }
         }
         // The rows below: −L_below X_s into the ancestors' blocks. The
         // pattern is ascending, so each ancestor's rows are one run.
-        let n_below = supernode.pattern.len();
+        let begin = self.symbolic.supernode_begin();
         let mut run_start = 0;
         while run_start < n_below {
-            let a = schedule.supernode_of[supernode.pattern[run_start]];
+            let a = self.schedule.supernode_of[supernode.pattern[run_start]];
             let run_end = run_start
                 + supernode.pattern[run_start..]
                     .iter()
-                    .take_while(|&&row| schedule.supernode_of[row] == a)
+                    .take_while(|&&row| self.schedule.supernode_of[row] == a)
                     .count();
-            let w_a = width(a);
-            for (p, &c) in reaching[s].iter().enumerate() {
-                let q = slot(a, c);
-                let target = &mut blocks[a][q * w_a..(q + 1) * w_a];
+            let w_a = self.width(a);
+            for (p, &c) in self.reaching[s].iter().enumerate() {
+                let q = self.slot(a, c);
+                let target = &mut self.block(blocks, a)[q * w_a..(q + 1) * w_a];
                 for t in run_start..run_end {
                     target[supernode.pattern[t] - begin[a]] -= below_x[t + p * n_below];
                 }
@@ -1050,7 +1198,6 @@ pub fn forward_gram(
             run_start = run_end;
         }
     }
-    Some(gram)
 }
 
 /// x's columns by supernode: each thread's (mutable), and the top's.
@@ -1104,13 +1251,19 @@ impl<'a> Supernode<'a> {
     /// x_s ← L_s⁻¹ x_s and tmp ← L_below x_s (faer's forward step), for
     /// the columns x_s holds (column-major, the supernode's width each).
     fn forward(&self, x_s: &mut [f64], tmp: &mut Vec<f64>) {
+        tmp.resize(self.pattern.len() * (x_s.len() / self.l.ncols()), 0.0);
+        self.forward_into(x_s, tmp);
+    }
+
+    /// [`Supernode::forward`] into `below`, of the pattern's length times
+    /// x_s's columns.
+    fn forward_into(&self, x_s: &mut [f64], below_x: &mut [f64]) {
         let ncols = self.l.ncols();
         let k = x_s.len() / ncols;
         let (diagonal, below) = self.l.split_at_row(ncols);
         let mut x_s = MatMut::from_column_major_slice_mut(x_s, ncols, k);
         solve_unit_lower_triangular_in_place_with_conj(diagonal, Conj::No, x_s.rb_mut(), Par::Seq);
-        tmp.resize(below.nrows() * k, 0.0);
-        let product = MatMut::from_column_major_slice_mut(&mut tmp[..], below.nrows(), k);
+        let product = MatMut::from_column_major_slice_mut(below_x, below.nrows(), k);
         matmul_with_conj(
             product,
             Accum::Replace,
@@ -1320,7 +1473,8 @@ mod tests {
     /// The forward sweeps of sparse columns over the paths they reach give
     /// Bᵀ (L D Lᵀ)⁻¹ B as whole solves do (to 1e-12 of its largest entry),
     /// for unit columns on multipliers and primal unknowns, a column with
-    /// several rows and two sharing a row; beyond the work bound, none.
+    /// several rows and two sharing a row, with the top's supernodes on one
+    /// thread or split between two; beyond the work bound, none.
     #[test]
     fn forward_sweeps_of_sparse_columns_give_their_inverse_products() {
         let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
@@ -1338,7 +1492,6 @@ mod tests {
             vec![(5, 1.0), (1200, 0.25)],
         ];
         let r = columns.len();
-        let gram = forward_gram(raw, &values, &schedule, &columns, f64::INFINITY).unwrap();
         let mut expected = vec![0.0; r * r];
         for (q, column_q) in columns.iter().enumerate() {
             let mut x = vec![0.0; n];
@@ -1351,11 +1504,16 @@ mod tests {
             }
         }
         let scale = super::super::norm_inf(&expected);
-        let worst = super::super::norm_inf(&super::super::difference(&expected, &gram));
-        assert!(
-            worst <= 1e-12 * scale,
-            "G differs by {worst:e} (scale {scale:e})"
-        );
+        // Every top supernode on one thread, and each split in two.
+        let sweep = GramSweep::new(raw, &values, &schedule, &columns);
+        for split_min_work in [f64::INFINITY, 0.0] {
+            let gram = sweep.run(f64::INFINITY, split_min_work).unwrap();
+            let worst = super::super::norm_inf(&super::super::difference(&expected, &gram));
+            assert!(
+                worst <= 1e-12 * scale,
+                "G differs by {worst:e} (scale {scale:e}, split from {split_min_work:e})"
+            );
+        }
         // A path is a small part of the factor; every column's path, more.
         let one = vec![columns[0].clone()];
         assert!(
