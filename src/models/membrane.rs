@@ -466,10 +466,10 @@ impl ModelSystem for MembraneSystem<'_> {
             (lh.value - exact.lambda(p.x)).powi(2)
         });
         let area: f64 = report
-            .lambda
+            .contact()
             .iter()
             .zip(&constraint.weights)
-            .filter(|(l, _)| **l > 0.0)
+            .filter(|(in_contact, _)| **in_contact)
             .map(|(_, w)| w)
             .sum();
         Some(ExactErrors {
@@ -537,11 +537,13 @@ impl ModelSystem for MembraneSystem<'_> {
         if let (Some(phi), Some(c)) = (&self.phi, &problem.constraint) {
             data.fields.push(vertex_field("phi", phi.clone()));
             let mut gaps = c.mean_gaps(&report.x);
+            let contact = report.contact();
             match &self.upper {
                 None => contact_fields(
                     &mut data,
                     report.lambda.clone(),
                     gaps,
+                    &contact,
                     self.lambda_space.element,
                 ),
                 Some(upper) => {
@@ -555,7 +557,14 @@ impl ModelSystem for MembraneSystem<'_> {
                         .map(|(a, b)| a - b)
                         .collect();
                     let upper_gaps = gaps.split_off(m);
-                    contact_fields(&mut data, net, gaps, self.lambda_space.element);
+                    let (lower_contact, upper_contact) = contact.split_at(m);
+                    contact_fields(
+                        &mut data,
+                        net,
+                        gaps,
+                        lower_contact,
+                        self.lambda_space.element,
+                    );
                     data.fields.push(vertex_field("phi_upper", upper.clone()));
                     for (name, values) in [
                         ("lambda_lower", lower_lambda.to_vec()),
@@ -563,7 +572,7 @@ impl ModelSystem for MembraneSystem<'_> {
                         ("gap_upper_mean", upper_gaps),
                         (
                             "contact_upper",
-                            upper_lambda.iter().map(|&l| f64::from(l > 0.0)).collect(),
+                            upper_contact.iter().map(|&c| f64::from(c)).collect(),
                         ),
                     ] {
                         data.fields

@@ -79,7 +79,8 @@ pub struct ExactErrors {
     pub l2: f64,
     pub h1: f64,
     pub lambda_l2: f64,
-    /// √(contact area / π) with the contact set {λ_i > 0} weighted by the Riesz weights.
+    /// √(contact area / π), the contact set (`SolveReport::contact`) weighted
+    /// by the Riesz weights.
     pub contact_radius: f64,
     pub exact_contact_radius: f64,
 }
@@ -312,18 +313,16 @@ pub fn vertex_field(name: &str, values: Vec<f64>) -> Field {
 }
 
 /// The contact fields of a result: λ, the mean gap ḡ and the contact
-/// indicator (λ > 0), per triangle (P0 multipliers) or per vertex (P1), and
-/// λ's coefficient vector with its `space` attribute.
+/// indicator (`SolveReport::contact`), per triangle (P0 multipliers) or per
+/// vertex (P1), and λ's coefficient vector with its `space` attribute.
 pub fn contact_fields(
     data: &mut ResultData,
     lambda: Vec<f64>,
     gap: Vec<f64>,
+    contact: &[bool],
     multipliers: Element,
 ) {
-    let contact = lambda
-        .iter()
-        .map(|&l| if l > 0.0 { 1.0 } else { 0.0 })
-        .collect();
+    let contact = contact.iter().map(|&c| f64::from(c)).collect();
     for (name, values) in [
         ("lambda", lambda.clone()),
         ("gap_mean", gap),

@@ -472,6 +472,7 @@ fn newton_steps(
     let mut max_linear_residual = 0.0f64;
     let mut interior_point_steps = 0;
     let mut first_step = 1;
+    let mut interior_answer = false;
     if let (
         ColdStart::InteriorPoint {
             handover,
@@ -500,6 +501,7 @@ fn newton_steps(
         } else {
             active = h.predicted;
             previous = active.clone();
+            interior_answer = first_step > options.max_iter;
         }
     }
     let mut rhs = vec![0.0; n + m];
@@ -668,7 +670,13 @@ fn newton_steps(
         ("interior_point_steps", interior_point_steps as f64),
         ("switched_steps", switched_steps as f64),
     ]);
-    Ok(report.finish(x, lambda, parameters))
+    let mut report = report.finish(x, lambda, parameters);
+    // `max_iter` inside the interior-point start: the answer is its iterate
+    // (every λ_i > 0), in contact where it predicts.
+    if interior_answer {
+        report.predicted_contact = Some(active);
+    }
+    Ok(report)
 }
 
 /// The rows of C, each as a column: (C's transpose, column-major).

@@ -198,9 +198,24 @@ pub struct SolveReport {
     pub alpha: Option<f64>,
     /// The Lanczos estimate Uzawa's α was chosen from (and judged against).
     pub spectrum: Option<SpectrumEstimate>,
+    /// The constraints an interior-point iterate predicts in contact (the
+    /// PDAS rule's set), where the run ended inside the active set's
+    /// interior-point start: its λ_i are all > 0. None for every other
+    /// answer, whose λ is zero off contact.
+    pub predicted_contact: Option<Vec<bool>>,
 }
 
 impl SolveReport {
+    /// The constraints in contact: λ_i > 0, or the interior point's
+    /// prediction where the answer is an interior iterate
+    /// (`predicted_contact`).
+    pub fn contact(&self) -> Vec<bool> {
+        match &self.predicted_contact {
+            Some(set) => set.clone(),
+            None => self.lambda.iter().map(|&l| l > 0.0).collect(),
+        }
+    }
+
     /// The named scalar parameter (`parameters`), if the method reports it.
     pub fn parameter(&self, name: &str) -> Option<f64> {
         self.parameters
@@ -340,6 +355,7 @@ impl ReportBuilder {
             parameters,
             alpha: self.alpha,
             spectrum: self.spectrum,
+            predicted_contact: None,
         }
     }
 }

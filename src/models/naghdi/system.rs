@@ -660,12 +660,14 @@ impl ModelSystem for NaghdiSystem<'_> {
             data.fields.push(vertex_field("phi", phi.clone()));
             data.fields
                 .push(vertex_field("constraint", constraint.clone()));
+            let contact = report.contact();
             let active = || {
                 report
                     .lambda
                     .iter()
                     .zip(&c.weights)
-                    .filter(|(l, _)| **l > 0.0)
+                    .zip(&contact)
+                    .filter_map(|(lw, &in_contact)| in_contact.then_some(lw))
             };
             let area: f64 = active().map(|(_, w)| w).sum();
             // ∫λ: the total force the plane exerts (C's row for u3 ≡ 1 is w).
@@ -674,6 +676,7 @@ impl ModelSystem for NaghdiSystem<'_> {
                 &mut data,
                 report.lambda.clone(),
                 c.mean_gaps(&report.x),
+                &contact,
                 layout.multiplier,
             );
             attrs.push(("contact_area", AttrValue::F64(area)));
