@@ -82,11 +82,6 @@ fn relative(a: &[f64], b: &[f64]) -> f64 {
         / scale
 }
 
-/// The constraints with λ_i > 0: a contact solve's active set.
-fn in_contact(r: &SolveReport) -> Vec<bool> {
-    r.lambda.iter().map(|&l| l > 0.0).collect()
-}
-
 /// Both runs' x and λ agree to `tol` (relative max norm), after the same
 /// number of iterations.
 fn assert_same(label: &str, method: &str, with: &SolveReport, without: &SolveReport, tol: f64) {
@@ -247,11 +242,7 @@ fn active_set_gives_the_same_active_set_and_solution_condensed() {
             with.iterations, without.iterations
         );
         assert!(with.converged && without.converged, "{label}");
-        assert_eq!(
-            in_contact(&with),
-            in_contact(&without),
-            "{label}: active sets"
-        );
+        assert_eq!(with.contact(), without.contact(), "{label}: active sets");
         assert_same(label, "active-set", &with, &without, 1e-10);
         assert_eq!(parameter(&with, "symbolic_analyses"), 1.0, "{label}");
         assert_eq!(
@@ -528,6 +519,6 @@ fn switched_pdas_steps_reach_the_factorised_solution() {
     assert!(s >= 1.0, "no step was switched");
     assert_eq!(f + s, switched.iterations as f64);
     assert_eq!(count(&factorised), (factorised.iterations as f64, 0.0));
-    assert_eq!(in_contact(&switched), in_contact(&factorised));
+    assert_eq!(switched.contact(), factorised.contact());
     assert_same("shell p1b-p0", "switched", &switched, &factorised, 1e-10);
 }

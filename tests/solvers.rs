@@ -290,9 +290,7 @@ fn interior_point_start_reaches_the_same_solution() {
             "{case}"
         );
         assert!(rel_diff(&interior.x, &bisection.x) < 1e-10, "{case}");
-        let contact =
-            |r: &SolveReport| -> Vec<bool> { r.lambda.iter().map(|&l| l > 0.0).collect() };
-        assert_eq!(contact(&interior), contact(&bisection), "{case}");
+        assert_eq!(interior.contact(), bisection.contact(), "{case}");
         let ip_steps = parameter(&interior, "interior_point_steps") as usize;
         assert!(ip_steps >= 1, "{case}: {ip_steps}");
         let finish = interior.iterations - 1 - ip_steps;
