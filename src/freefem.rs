@@ -484,6 +484,16 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
             ("cylinder", vec![("-R", radius), ("-height", height)])
         }
         Chart::CurvatureKink { r, offset } => ("kink", vec![("-R", r), ("-offset", offset)]),
+        Chart::Sphere { .. } | Chart::Cone { .. } | Chart::Parametric(_) | Chart::Graph(_) => {
+            return Err(scene_error(
+                scene,
+                "shell.chart",
+                format!(
+                    "the FreeFEM script {PSRI_SCRIPT} has the hyperbolic-paraboloid, plate, cylinder and curvature-kink charts, not {}",
+                    shell.chart.kind()
+                ),
+            ))
+        }
     };
     let mut a: Vec<String> = vec![
         format!("-DUSPACE={}", spaces.u.tag()),

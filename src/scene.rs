@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 /// The largest magnitude of a scene number (and the inverse, the smallest
 /// non-zero one): see `Scene::check_finite`.
-pub const MAGNITUDE_LIMIT: f64 = 1e100;
+pub use crate::expression::MAGNITUDE_LIMIT;
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -142,10 +142,12 @@ pub struct EdgeLoadSpec {
 /// The midsurface chart φ: ω → R³, as declared in a scene (`kind = "..."`);
 /// its geometry (jets, normals, curvature) is `models::naghdi::geometry`.
 ///
-/// Every variant is a graph over the (x, y) plane or an arc-length
-/// parametrisation, so each is regular (√a ≥ 1 for graphs, √a = 1 for the
-/// cylinder) and its first and second derivatives are exact closed forms.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+/// The presets (every variant but `parametric` and `graph`) have closed-form
+/// first and second derivatives; `parametric` and `graph` take φ as
+/// expressions in the mesh coordinates x, y and differentiate them exactly
+/// ([`ChartExpressions`]). A preset and its parametric spelling give the same
+/// geometry to round-off.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum Chart {
     /// φ(x, y) = (x, y, (x² − y²)/r² + offset): the thesis hyperbolic
@@ -175,9 +177,118 @@ pub enum Chart {
     /// (0, 0, 2/r²), so b_αβ and ∂_α a3 jump. Each side is evaluated exactly;
     /// exactly at x = 0 the left (flat) one-sided second derivative is used.
     CurvatureKink { r: f64, offset: f64 },
+    /// A sphere of radius R centred at (0, 0, height), x the longitude and y
+    /// the latitude (radians):
+    ///
+    ///   φ(x, y) = (R cos y cos x, R cos y sin x, height + R sin y).
+    ///
+    /// a3 = φ − centre over R points outward, √a = R² cos y: regular for
+    /// |y| < π/2 (the poles are singular points of the chart).
+    Sphere { radius: f64, height: f64 },
+    /// A circular cone with its apex at (0, 0, height), opening upward with
+    /// half-angle β (radians, 0 < β < π/2): x is the distance from the apex
+    /// along a generator, y the angle about the axis:
+    ///
+    ///   φ(x, y) = (x sin β cos y, x sin β sin y, height + x cos β).
+    ///
+    /// a3 = (−cos β cos y, −cos β sin y, sin β) points into the cone (up);
+    /// √a = x sin β: regular for x > 0 (the apex is singular).
+    Cone { half_angle: f64, height: f64 },
+    /// φ(x, y) = (X, Y, Z), three expressions in the mesh coordinates.
+    Parametric(ParametricChart),
+    /// φ(x, y) = (x, y, height), `height` an expression: a graph over the
+    /// (x, y) plane.
+    Graph(GraphChart),
+}
+
+/// φ = (X, Y, Z) as expressions with their exact first and second
+/// derivatives, compiled once when the scene is read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChartExpressions {
+    /// X, Y, Z.
+    pub phi: [Expression; 3],
+    /// d\[i\]\[α\] = ∂_α φ_i.
+    pub d: [[Expression; 2]; 3],
+    /// dd\[i\] = (∂_xx φ_i, ∂_xy φ_i, ∂_yy φ_i).
+    pub dd: [[Expression; 3]; 3],
+}
+
+impl ChartExpressions {
+    /// Differentiates φ twice; `keys` name the components in errors.
+    pub fn new(phi: [Expression; 3], keys: [&str; 3]) -> std::result::Result<Self, String> {
+        use crate::expression::Variable::{X, Y};
+        let mut d: Vec<[Expression; 2]> = Vec::new();
+        let mut dd: Vec<[Expression; 3]> = Vec::new();
+        for (component, key) in phi.iter().zip(keys) {
+            let named =
+                |r: std::result::Result<Expression, String>| r.map_err(|e| format!("{key}: {e}"));
+            let dx = named(component.derivative(X))?;
+            let dy = named(component.derivative(Y))?;
+            let dxx = named(dx.derivative(X))?;
+            let dxy = named(dx.derivative(Y))?;
+            let dyy = named(dy.derivative(Y))?;
+            d.push([dx, dy]);
+            dd.push([dxx, dxy, dyy]);
+        }
+        Ok(ChartExpressions {
+            phi,
+            d: d.try_into().map_err(|_| "three components")?,
+            dd: dd.try_into().map_err(|_| "three components")?,
+        })
+    }
+}
+
+/// `kind = "parametric"`: X, Y, Z.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(try_from = "ParametricSpec")]
+pub struct ParametricChart(pub ChartExpressions);
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ParametricSpec {
+    #[serde(rename = "X")]
+    x: Expression,
+    #[serde(rename = "Y")]
+    y: Expression,
+    #[serde(rename = "Z")]
+    z: Expression,
+}
+
+impl TryFrom<ParametricSpec> for ParametricChart {
+    type Error = String;
+    fn try_from(s: ParametricSpec) -> std::result::Result<Self, String> {
+        ChartExpressions::new([s.x, s.y, s.z], ["X", "Y", "Z"]).map(ParametricChart)
+    }
+}
+
+/// `kind = "graph"`: height.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(try_from = "GraphSpec")]
+pub struct GraphChart(pub ChartExpressions);
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GraphSpec {
+    height: Expression,
+}
+
+impl TryFrom<GraphSpec> for GraphChart {
+    type Error = String;
+    fn try_from(s: GraphSpec) -> std::result::Result<Self, String> {
+        let coordinate = |t| Expression::parse(t).map_err(|e| e.to_string());
+        let phi = [coordinate("x")?, coordinate("y")?, s.height];
+        ChartExpressions::new(phi, ["x", "y", "height"]).map(GraphChart)
+    }
 }
 
 impl Chart {
+    /// `kind = "parametric"` with φ = (X, Y, Z) given as expression texts.
+    pub fn parametric(texts: [&str; 3]) -> std::result::Result<Chart, String> {
+        let [x, y, z] = texts.map(Expression::parse);
+        ChartExpressions::new([x?, y?, z?], ["X", "Y", "Z"])
+            .map(|e| Chart::Parametric(ParametricChart(e)))
+    }
+
     /// The scene name of the variant (`kind = "..."`).
     pub fn kind(&self) -> &'static str {
         match self {
@@ -185,6 +296,18 @@ impl Chart {
             Chart::Plate { .. } => "plate",
             Chart::Cylinder { .. } => "cylinder",
             Chart::CurvatureKink { .. } => "curvature-kink",
+            Chart::Sphere { .. } => "sphere",
+            Chart::Cone { .. } => "cone",
+            Chart::Parametric(_) => "parametric",
+            Chart::Graph(_) => "graph",
+        }
+    }
+
+    /// The chart's expressions, for `parametric` and `graph`.
+    pub fn expressions(&self) -> Option<&ChartExpressions> {
+        match self {
+            Chart::Parametric(ParametricChart(e)) | Chart::Graph(GraphChart(e)) => Some(e),
+            _ => None,
         }
     }
 
@@ -213,10 +336,19 @@ impl Chart {
                 finite("offset", offset)
             }
             Chart::Plate { height } => finite("height", height),
-            Chart::Cylinder { radius, height } => {
+            Chart::Cylinder { radius, height } | Chart::Sphere { radius, height } => {
                 positive("radius", radius)?;
                 finite("height", height)
             }
+            Chart::Cone { half_angle, height } => {
+                if !(half_angle > 0.0 && half_angle < std::f64::consts::FRAC_PI_2) {
+                    return Err(format!(
+                        "chart cone: half_angle must lie in (0, π/2) (radians), got {half_angle}"
+                    ));
+                }
+                finite("height", height)
+            }
+            Chart::Parametric(_) | Chart::Graph(_) => Ok(()),
         }
     }
 }

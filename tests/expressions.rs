@@ -57,6 +57,48 @@ fn bad_expressions_name_their_key() {
     }
 }
 
+/// The hard inputs of the expression reader, through the command line: deep
+/// nesting is an error naming the key (never a stack overflow), blanks never
+/// join numbers, a value beyond ±1e100 is refused where it is evaluated, and
+/// the documented language (nested calls, clamps) is read.
+#[test]
+fn hard_expressions_are_read_or_refused_by_key() {
+    let dir = tmp();
+    let out = dir.path().join("r.h5");
+    let nested = |n: usize| "if(x<0,".repeat(n) + "1" + &",2)".repeat(n);
+    let deep = format!("load.g=\"{}\"", nested(1000));
+    let cases: Vec<(String, Vec<&str>)> = vec![
+        (deep, vec!["load.g", "nested more than 200"]),
+        (
+            "load.g=\"x y\"".into(),
+            vec!["load.g", "character 3", "operator"],
+        ),
+        (
+            "load.g=\"1 2\"".into(),
+            vec!["load.g", "character 3", "operator"],
+        ),
+        ("load.g=\"2 .5\"".into(), vec!["load.g", "operator"]),
+        (
+            "load.g=\"1e200*(1+x)\"".into(),
+            vec!["load.g", "1e100", "at the point"],
+        ),
+    ];
+    for (set, expected) in &cases {
+        let o = solve_scene(TWO_SIDED, &out, &[set, "mesh.n=4"]);
+        assert_one_error(&o, expected, &set[..set.len().min(40)]);
+        assert!(!out.exists());
+    }
+    let hundred = format!("load.g=\"{}\"", nested(100));
+    for set in [
+        hundred.as_str(),
+        "obstacle.upper=\"max(0.1, min(0.15 + 0.1*r^2, 0.2))\"",
+        "load.g=\"min(x, min(y, 1)) + atan2(y, atan2(x, 1)) - 2^3^2/64\"",
+    ] {
+        let o = solve_scene(TWO_SIDED, &out, &[set, "mesh.n=4"]);
+        assert!(o.status.success(), "{set}: {}", common::text(&o));
+    }
+}
+
 /// ψ₁ > ψ₂ somewhere, and boundary values outside [ψ₁, ψ₂]: refused before
 /// solving, naming the point.
 #[test]

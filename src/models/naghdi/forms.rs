@@ -1148,7 +1148,7 @@ mod tests {
                 field(&|_| [0.2, -0.4, 1.0, 0.0, 0.0, 0.0]),
             ),
             (
-                plate,
+                plate.clone(),
                 field(&|p| {
                     let u = omega.cross(&plate.at(p).phi);
                     let r = omega.cross(&Vector3::z());

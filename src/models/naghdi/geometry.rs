@@ -23,6 +23,7 @@ use serde::Deserialize;
 /// The chart is declared by the scene (its variants and their range checks
 /// are scene data); its geometry is implemented here.
 pub use crate::scene::Chart;
+use crate::scene::{ChartExpressions, GraphChart, ParametricChart};
 
 /// A chart is singular at a point where |a1×a2| falls below this.
 pub const SINGULAR_TOL: f64 = 1e-12;
@@ -73,6 +74,47 @@ impl Chart {
         let [x1, x2] = x;
         let zero = Vector3::zeros();
         match *self {
+            Chart::Parametric(ParametricChart(ref e)) | Chart::Graph(GraphChart(ref e)) => {
+                expression_jet(e, x)
+            }
+            Chart::Sphere { radius, height } => {
+                let (sx, cx) = x1.sin_cos();
+                let (sy, cy) = x2.sin_cos();
+                let r = radius;
+                Jet {
+                    phi: Vector3::new(r * cy * cx, r * cy * sx, height + r * sy),
+                    d: [
+                        Vector3::new(-r * cy * sx, r * cy * cx, 0.0),
+                        Vector3::new(-r * sy * cx, -r * sy * sx, r * cy),
+                    ],
+                    dd: [
+                        [
+                            Vector3::new(-r * cy * cx, -r * cy * sx, 0.0),
+                            Vector3::new(r * sy * sx, -r * sy * cx, 0.0),
+                        ],
+                        [
+                            Vector3::new(r * sy * sx, -r * sy * cx, 0.0),
+                            Vector3::new(-r * cy * cx, -r * cy * sx, -r * sy),
+                        ],
+                    ],
+                }
+            }
+            Chart::Cone { half_angle, height } => {
+                let (sb, cb) = half_angle.sin_cos();
+                let (sy, cy) = x2.sin_cos();
+                let tangent_turn = Vector3::new(-sb * sy, sb * cy, 0.0);
+                Jet {
+                    phi: Vector3::new(x1 * sb * cy, x1 * sb * sy, height + x1 * cb),
+                    d: [Vector3::new(sb * cy, sb * sy, cb), x1 * tangent_turn],
+                    dd: [
+                        [zero, tangent_turn],
+                        [
+                            tangent_turn,
+                            Vector3::new(-x1 * sb * cy, -x1 * sb * sy, 0.0),
+                        ],
+                    ],
+                }
+            }
             Chart::HyperbolicParaboloid { r, offset } => {
                 let r2 = r * r;
                 Jet {
@@ -134,13 +176,33 @@ impl Chart {
         points: impl Iterator<Item = [f64; 2]>,
     ) -> Result<(), ([f64; 2], f64)> {
         for x in points {
-            let [a1, a2] = self.jet(x).d;
+            let jet = self.jet(x);
+            let [a1, a2] = jet.d;
             let sqrt_a = a1.cross(&a2).norm();
-            if sqrt_a.is_nan() || sqrt_a < SINGULAR_TOL {
-                return Err((x, sqrt_a));
+            let finite = jet
+                .phi
+                .iter()
+                .chain(jet.dd.iter().flatten().flatten())
+                .all(|v| v.is_finite());
+            if !finite || sqrt_a.is_nan() || sqrt_a < SINGULAR_TOL {
+                return Err((x, if finite { sqrt_a } else { f64::NAN }));
             }
         }
         Ok(())
+    }
+}
+
+/// φ's jet from its expressions and their exact derivatives.
+fn expression_jet(e: &ChartExpressions, x: [f64; 2]) -> Jet {
+    let v = |f: &crate::scene::Expression| f.eval(x);
+    let column = |f: &dyn Fn(usize) -> f64| Vector3::new(f(0), f(1), f(2));
+    let d: [Vector3<f64>; 2] = std::array::from_fn(|al| column(&|i| v(&e.d[i][al])));
+    let second = |k: usize| column(&|i| v(&e.dd[i][k]));
+    let mixed = second(1);
+    Jet {
+        phi: column(&|i| v(&e.phi[i])),
+        d,
+        dd: [[second(0), mixed], [mixed, second(2)]],
     }
 }
 
@@ -302,6 +364,15 @@ mod tests {
                 r: 1.3,
                 offset: 0.2,
             },
+            Chart::Sphere {
+                radius: 4.0,
+                height: 1.0,
+            },
+            Chart::Cone {
+                half_angle: 0.4,
+                height: 0.3,
+            },
+            Chart::parametric(["x + 0.1*y^2", "y*(1 + 0.2*x)", "sin(x)*cos(y)"]).unwrap(),
         ]
     }
 
@@ -449,7 +520,7 @@ mod tests {
                         worst = worst.max(err / exact.norm());
                     }
                     assert!(
-                        err <= 1e-6 * exact.norm() + 1e-12,
+                        err <= 1e-6 * exact.norm() + 1e-10, // FD round-off ~ ε/h
                         "{chart:?} at {x:?}: ∂_{al} a3 = {exact:?}, FD {fd:?}, error {err:e}"
                     );
                 }
@@ -555,6 +626,89 @@ mod tests {
             assert_eq!(zero.a1, Vector3::x());
             assert_eq!(zero.a3, Vector3::z());
         }
+    }
+
+    /// The presets' closed forms against their parametric spelling, whose
+    /// derivatives are the expression tree's exact ones: jets equal to
+    /// round-off at points off the kink line.
+    #[test]
+    fn presets_equal_their_parametric_spelling() {
+        let cases: [(Chart, [&str; 3]); 7] = [
+            (hypar_thesis(), ["x", "y", "(x^2 - y^2)/5000 + 1.4"]),
+            (
+                Chart::HyperbolicParaboloid {
+                    r: 1.7,
+                    offset: -0.3,
+                },
+                ["x", "y", "(x^2 - y^2)/1.7^2 - 0.3"],
+            ),
+            (Chart::Plate { height: 2.0 }, ["x", "y", "2"]),
+            (
+                Chart::Cylinder {
+                    radius: 3.0,
+                    height: 0.5,
+                },
+                ["3*sin(x/3)", "y", "0.5 + 3*cos(x/3)"],
+            ),
+            (
+                Chart::CurvatureKink {
+                    r: 1.3,
+                    offset: 0.2,
+                },
+                ["x", "y", "0.2 + max(x, 0)^2/1.3^2"],
+            ),
+            (
+                Chart::Sphere {
+                    radius: 10.0,
+                    height: -7.0,
+                },
+                ["10*cos(y)*cos(x)", "10*cos(y)*sin(x)", "-7 + 10*sin(y)"],
+            ),
+            (
+                Chart::Cone {
+                    half_angle: 0.6,
+                    height: 1.5,
+                },
+                ["x*sin(0.6)*cos(y)", "x*sin(0.6)*sin(y)", "1.5 + x*cos(0.6)"],
+            ),
+        ];
+        for (preset, texts) in cases {
+            let spelled = Chart::parametric(texts).unwrap();
+            for x in sample_points() {
+                // The sphere's chart is regular for |latitude| < π/2 only.
+                let x = [x[0], x[1] * 0.5];
+                let (a, b) = (preset.jet(x), spelled.jet(x));
+                let scale = 1.0 + a.phi.norm();
+                let worst = (a.phi - b.phi)
+                    .norm()
+                    .max((0..2).map(|k| (a.d[k] - b.d[k]).norm()).fold(0.0, f64::max))
+                    .max(
+                        (0..4)
+                            .map(|k| (a.dd[k / 2][k % 2] - b.dd[k / 2][k % 2]).norm())
+                            .fold(0.0, f64::max),
+                    );
+                assert!(
+                    worst < 1e-12 * scale,
+                    "{} at {x:?}: {worst:e}",
+                    preset.kind()
+                );
+                let (p, q) = (preset.at(x), spelled.at(x));
+                assert!((p.a3 - q.a3).norm() < 1e-13 && (p.b_cov - q.b_cov).norm() < 1e-12 * scale);
+            }
+        }
+        // The sphere's normal points outward, the cone's into it.
+        let sphere = Chart::Sphere {
+            radius: 2.0,
+            height: 0.0,
+        }
+        .at([0.3, 0.4]);
+        assert!((sphere.a3 - sphere.phi / 2.0).norm() < 1e-14);
+        let cone = Chart::Cone {
+            half_angle: 0.6,
+            height: 0.0,
+        }
+        .at([1.0, 0.0]);
+        assert!((cone.a3 - Vector3::new(-0.6f64.cos(), 0.0, 0.6f64.sin())).norm() < 1e-14);
     }
 
     #[test]

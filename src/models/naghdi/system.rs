@@ -253,7 +253,7 @@ impl<'m> NaghdiSystem<'m> {
     /// the obstacle: the clamped boundary must not lie below the plane.
     pub fn setup(mesh: &'m Mesh, scene: &Scene) -> Result<Self> {
         let shell: &ShellSpec = scene.shell.as_ref().expect("validated: naghdi has [shell]");
-        let chart = shell.chart;
+        let chart = shell.chart.clone();
         check_chart_regular(mesh, scene, &chart)?;
         let material = Material::of(shell);
         let kind = match scene.element {
