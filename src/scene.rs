@@ -124,6 +124,23 @@ pub struct LoadSpec {
     /// Tractions N and moments M on parts γ1 of the boundary (shell).
     #[serde(default)]
     pub edge: Vec<EdgeLoadSpec>,
+    /// Pressure p(x, y) on the shell: force per unit area p·a3 along the unit
+    /// normal a3 = a1×a2/|a1×a2| (p > 0 pushes the shell along a3; on the
+    /// sphere preset, whose a3 points outward, an internal pressure):
+    /// L(V) ∋ ∫ p a3·v √a dx.
+    pub pressure: Option<Expression>,
+    /// Concentrated forces at points of ω (shell): L(V) ∋ F·v(x₀).
+    #[serde(default)]
+    pub point: Vec<PointLoadSpec>,
+}
+
+/// A concentrated force `force` = (F1, F2, F3) at the parameter point `at`
+/// (`[[load.point]]`): exact at a vertex of the mesh, refused outside ω.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointLoadSpec {
+    pub at: [f64; 2],
+    pub force: [f64; 3],
 }
 
 /// A constant traction N and moment M on one named boundary part γ1:
@@ -1136,10 +1153,14 @@ impl Scene {
         {
             self.check_finite("mesh.dirichlet_value", v)?;
         }
-        if load.f.is_some() || !load.edge.is_empty() {
+        if load.f.is_some()
+            || !load.edge.is_empty()
+            || load.pressure.is_some()
+            || !load.point.is_empty()
+        {
             return Err(self.error(
                 "load",
-                "`f` and `edge` are shell loads; the membrane takes `g`",
+                "`f`, `pressure`, `point` and `edge` are shell loads; the membrane takes `g`",
             ));
         }
         if self.shell.is_some() {
@@ -1325,6 +1346,17 @@ impl Scene {
             for (i, v) in load.f.iter().flatten().enumerate() {
                 if let Some(v) = v.as_constant() {
                     self.check_finite(&format!("load.f[{i}]"), v)?;
+                }
+            }
+            if let Some(v) = load.pressure.as_ref().and_then(Expression::as_constant) {
+                self.check_finite("load.pressure", v)?;
+            }
+            for (k, point) in load.point.iter().enumerate() {
+                for (i, v) in point.at.iter().enumerate() {
+                    self.check_finite(&format!("load.point[{k}].at[{i}]"), *v)?;
+                }
+                for (i, v) in point.force.iter().enumerate() {
+                    self.check_finite(&format!("load.point[{k}].force[{i}]"), *v)?;
                 }
             }
             for (e, edge) in load.edge.iter().enumerate() {

@@ -257,7 +257,7 @@ fn stiffness_times(
         poisson: 0.3,
         thickness,
     };
-    let zero = [0.0; 3].map(obstacle_fem::expression::Expression::constant);
+    let zero = obstacle_fem::models::naghdi::forms::SurfaceLoad::body([0.0; 3]);
     let all_free = obstacle_fem::assembly::DofNumbering::all_free(layout.n_total());
     let (a, _) = assemble_shell_layout(mesh, &layout, chart, &material, 0.0, &zero, &all_free);
     let scale = obstacle_fem::assembly::norm_inf(a.val());

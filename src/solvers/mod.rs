@@ -98,6 +98,19 @@ impl ContactProblem {
         crate::linalg::product(&self.matrix, self.kind, x)
     }
 
+    /// The strain energy ½ Uᵀ K U and the external work Fᵀ U of the primal
+    /// part U of x (the first `n_primal` unknowns; K is A's primal block, so
+    /// the equality multipliers' coupling is left out).
+    pub fn energies(&self, x: &[f64]) -> (f64, f64) {
+        let np = self.n_primal;
+        let mut primal = x.to_vec();
+        primal[np..].fill(0.0);
+        let ku = self.product(&primal);
+        let strain: f64 = 0.5 * (0..np).map(|i| x[i] * ku[i]).sum::<f64>();
+        let work: f64 = (0..np).map(|i| x[i] * self.rhs[i]).sum();
+        (strain, work)
+    }
+
     /// Keeps a symmetric A as its lower triangle, the part every
     /// factorisation reads (a general A stays whole): half of A's memory
     /// through the solve (the shell's active set at n = 256: peak RSS

@@ -23,7 +23,7 @@
 //! polynomial (the chart is smooth inside T).
 
 use super::forms::{
-    generalized_strains, strain_weights, FieldRole, ShellLayout, StrainVector,
+    generalized_strains, strain_weights, FieldRole, ShellLayout, StrainVector, SurfaceLoad,
     GRAD_NORMAL_ROTATION, N_STRAINS,
 };
 use super::geometry::{Chart, Material, SurfacePoint};
@@ -31,7 +31,6 @@ use crate::assembly::quad_points;
 use crate::mesh::Mesh;
 use crate::models::estimator::{add_edge_jumps, central_gradient, diameter, Indicators};
 use crate::quadrature::{SegmentRule, TriangleRule};
-use crate::scene::Expression;
 use crate::space::{Space, TriangleGeometry};
 use nalgebra::{Matrix6x2, Vector3, Vector6};
 
@@ -45,7 +44,7 @@ pub struct ShellState<'a> {
     pub material: &'a Material,
     pub rho: f64,
     /// The body force f.
-    pub load: &'a [Expression; 3],
+    pub load: &'a SurfaceLoad,
     /// The rotation test functions are tangent: θ^β a_β (p2b-psri), or the
     /// plate reduction's r3 = 0; else all of s is tested (thesis element with ψ).
     pub tangent_tests: bool,
@@ -197,8 +196,9 @@ pub fn shell_indicators(state: &ShellState) -> Indicators {
             let (_, g0) = fluxes(&s.p, &s.sigma);
             let d_flux = central_gradient(flux_at, q.x, FLUX_STEP * h);
             let mut r: Vector6<f64> = d_flux[0].column(0) + d_flux[1].column(1) - g0;
+            let force = state.load.at(&s.p);
             for c in 0..3 {
-                r[c] += state.load[c].eval(q.x) * s.p.sqrt_a;
+                r[c] += force[c] * s.p.sqrt_a;
             }
             if let Some(contact) = &state.contact {
                 let (space, coefficients) = contact.multiplier;

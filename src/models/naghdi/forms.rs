@@ -481,6 +481,42 @@ pub struct ElementMatrices {
     pub load: Vec<f64>,
 }
 
+/// The distributed loads of L(V) = ∫ (f + p a3)·v √a dx: a body force f and
+/// a pressure p along the unit normal a3.
+#[derive(Debug, Clone)]
+pub struct SurfaceLoad {
+    pub force: [Expression; 3],
+    pub pressure: Option<Expression>,
+}
+
+impl SurfaceLoad {
+    /// A constant body force, no pressure.
+    pub fn body(force: [f64; 3]) -> SurfaceLoad {
+        SurfaceLoad {
+            force: force.map(Expression::constant),
+            pressure: None,
+        }
+    }
+
+    /// The force per unit area f + p a3 at the chart point `p`.
+    pub fn at(&self, p: &SurfacePoint) -> Vector3<f64> {
+        let f = Vector3::from_fn(|c, _| self.force[c].eval(p.x));
+        match &self.pressure {
+            Some(pressure) => f + pressure.eval(p.x) * p.a3,
+            None => f,
+        }
+    }
+
+    /// Whether any load is given.
+    pub fn is_zero(&self) -> bool {
+        self.force.iter().all(|f| f.as_constant() == Some(0.0))
+            && self
+                .pressure
+                .as_ref()
+                .is_none_or(|p| p.as_constant() == Some(0.0))
+    }
+}
+
 /// The element matrices of a_ρ, b and L on triangle t.
 #[allow(clippy::too_many_arguments)]
 pub fn element_matrices(
@@ -491,7 +527,7 @@ pub fn element_matrices(
     chart: &Chart,
     material: &Material,
     rho: f64,
-    load: &[Expression; 3],
+    load: &SurfaceLoad,
 ) -> ElementMatrices {
     let g = TriangleGeometry::new(mesh, t);
     let u_fields: Vec<&ShellField> = layout.u_fields().collect();
@@ -512,6 +548,11 @@ pub fn element_matrices(
             if let Some(f) = pass.factors {
                 scale_strain_groups(&mut d, f);
             }
+            let force = if pass.full {
+                load.at(&p)
+            } else {
+                Vector3::zeros()
+            };
             // E: strains of every local U basis function; DE = D·E.
             let mut i = 0;
             for field in &u_fields {
@@ -521,7 +562,7 @@ pub fn element_matrices(
                     e[i] = field_strains(&p, field.role, basis.values[k], grad);
                     if pass.full {
                         if let FieldRole::Displacement(c) = field.role {
-                            el.load[i] += q.weight * load[c].eval(q.x) * basis.values[k] * p.sqrt_a;
+                            el.load[i] += q.weight * force[c] * basis.values[k] * p.sqrt_a;
                         }
                     }
                     i += 1;
@@ -595,7 +636,7 @@ pub fn assemble_shell_layout(
     chart: &Chart,
     material: &Material,
     rho: f64,
-    load: &[Expression; 3],
+    load: &SurfaceLoad,
     numbering: &DofNumbering,
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
     let free = |globals: &[usize]| -> Vec<Option<usize>> {
@@ -636,7 +677,7 @@ pub fn assemble_shell_full(
     rho: f64,
     load: [f64; 3],
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
-    let load = load.map(Expression::constant);
+    let load = SurfaceLoad::body(load);
     let layout = ShellLayout::new(mesh);
     let numbering = DofNumbering::all_free(layout.n_total());
     assemble_shell_layout(mesh, &layout, chart, material, rho, &load, &numbering)
@@ -655,7 +696,7 @@ pub fn assemble_shell(
 ) -> (ContactProblem, DofNumbering) {
     let numbering = clamped_numbering(mesh, clamped_tags);
     let layout = ShellLayout::new(mesh);
-    let load = load.map(Expression::constant);
+    let load = SurfaceLoad::body(load);
     let (a, f_full) = assemble_shell_layout(mesh, &layout, chart, material, rho, &load, &numbering);
     let problem = restrict_shell(&layout, a, &f_full, &numbering);
     (problem, numbering)
@@ -767,6 +808,30 @@ pub fn add_edge_load(
                     }
                 }
             }
+        }
+    }
+}
+
+/// Adds a concentrated force F·v(x₀) to a full load vector: x₀ has the
+/// barycentric coordinates `l` in triangle `t`, and each displacement field's
+/// basis functions are evaluated there (at a vertex: 1 on that vertex's dof,
+/// 0 elsewhere, so the load is exact).
+pub fn add_point_load(
+    mesh: &Mesh,
+    layout: &ShellLayout,
+    t: usize,
+    l: [f64; 3],
+    force: [f64; 3],
+    f_full: &mut [f64],
+) {
+    for field in layout.u_fields() {
+        let FieldRole::Displacement(c) = field.role else {
+            continue;
+        };
+        let basis = field.element.basis(l);
+        let (dofs, n) = Space::new(mesh, field.element).element_dofs(t);
+        for k in 0..n {
+            f_full[field.offset + dofs[k]] += force[c] * basis.values[k];
         }
     }
 }
@@ -1089,7 +1154,7 @@ mod tests {
                 &hypar(),
                 &material(),
                 1e3,
-                &[0.0, 0.0, -0.25].map(Expression::constant),
+                &SurfaceLoad::body([0.0, 0.0, -0.25]),
             );
             let n = el.n_u;
             let scale = el.stiffness.iter().fold(0.0f64, |m, v| m.max(v.abs()));

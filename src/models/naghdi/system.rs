@@ -14,9 +14,10 @@
 
 use super::estimator::{shell_indicators, ShellContact, ShellState};
 use super::forms::{
-    add_edge_load, assemble_shell_layout, balanced_tangency_scale, constraint_factor, fix_fields,
-    nodal_plane_constraint, obstacle_at_vertices, plane_constraint, restrict_shell,
-    scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
+    add_edge_load, add_point_load, assemble_shell_layout, balanced_tangency_scale,
+    constraint_factor, fix_fields, nodal_plane_constraint, obstacle_at_vertices, plane_constraint,
+    restrict_shell, scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
+    SurfaceLoad,
 };
 use super::geometry::{obstacle_function, Chart, Material};
 use crate::assembly::{quad_points, quadrature_points, DofNumbering};
@@ -51,9 +52,11 @@ pub struct NaghdiSystem<'m> {
     /// Flat chart with the thesis element: r3 eliminated, no ψ (see the
     /// module documentation).
     pub plate_reduction: bool,
-    /// The body force f and the edge loads (tag, N, M), resolved once.
-    body_force: [Expression; 3],
+    /// The body force f and pressure p, the edge loads (tag, N, M) and the
+    /// point loads (triangle, barycentric coordinates, F), resolved once.
+    surface_load: SurfaceLoad,
     edge_loads: Vec<(i32, [f64; 3], [f64; 3])>,
+    point_loads: Vec<(usize, [f64; 3], [f64; 3])>,
     /// The rigid body's height h(x, y): z < h is the obstacle (a number for the plane).
     pub height: Option<Expression>,
     /// Φ at the vertices, with the plane's level added (obstacle scenes).
@@ -106,6 +109,43 @@ fn resolved_conditions(
         out.push((tags, b.clone()));
     }
     Ok(out)
+}
+
+/// The vertices where the fixed dofs pin the constraint value
+/// w = (u − ε/2 r)·e3 to 0: u3 is fixed there and so is the rotation's
+/// contribution: every rotation field entering w is fixed at the vertex, or
+/// its factor vanishes (a tangent rotation with a3 = ±e3 has r·e3 = 0; with
+/// tangent rotations the factor of θ^β is a_β·e3).
+fn constraint_pinned_vertices(
+    mesh: &Mesh,
+    layout: &ShellLayout,
+    chart: &Chart,
+    fixed: &[bool],
+) -> Vec<bool> {
+    let fixed_at = |role: FieldRole, v: usize| {
+        layout
+            .field_of(role)
+            .is_none_or(|f| fixed[layout.fields[f].offset + v])
+    };
+    (0..mesh.n_vertices())
+        .map(|v| {
+            if !fixed_at(FieldRole::Displacement(2), v) {
+                return false;
+            }
+            let p = chart.at(mesh.vertices[v]);
+            let tol = 1e-12;
+            let cartesian_pinned = (0..3).all(|c| fixed_at(FieldRole::CartesianRotation(c), v))
+                || p.a3.cross(&Vector3::z()).norm() <= tol;
+            let tangent_pinned = (0..2).all(|be| {
+                fixed_at(FieldRole::TangentRotation(be), v)
+                    || p.a(be).z.abs() <= tol * p.a(be).norm()
+            });
+            match layout.kind {
+                ShellElementKind::P1bP0 => cartesian_pinned,
+                ShellElementKind::P2bPsri => tangent_pinned,
+            }
+        })
+        .collect()
 }
 
 /// The fixed-dof mask of the boundary conditions (docs/shell-benchmarks.md):
@@ -296,21 +336,47 @@ impl<'m> NaghdiSystem<'m> {
             .map(|(t, _)| t.clone())
             .collect();
         let load = scene.load.as_ref();
-        let body_force = load
-            .and_then(|l| l.f.clone())
-            .unwrap_or_else(|| std::array::from_fn(|_| Expression::constant(0.0)));
+        let surface_load = SurfaceLoad {
+            force: load
+                .and_then(|l| l.f.clone())
+                .unwrap_or_else(|| std::array::from_fn(|_| Expression::constant(0.0))),
+            pressure: load.and_then(|l| l.pressure.clone()),
+        };
         // Where assembly evaluates the body force and the P1 constraint the
         // obstacle: Radon's 7 points (the PSRI passes' lower-degree rules are
         // not checked separately).
         let rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
-        for (c, f) in body_force.iter().enumerate() {
-            let key = format!("load.f[{c}]");
+        let keyed = surface_load
+            .force
+            .iter()
+            .enumerate()
+            .map(|(c, f)| (format!("load.f[{c}]"), f))
+            .chain(
+                surface_load
+                    .pressure
+                    .iter()
+                    .map(|p| ("load.pressure".to_string(), p)),
+            );
+        for (key, f) in keyed {
             f.check_finite_at(&key, rule_points.iter().copied())
                 .map_err(|reason| Error::Scene {
                     file: scene.source.clone(),
                     field: key.clone(),
                     reason,
                 })?;
+        }
+        let locator = PointLocator::new(mesh);
+        let mut point_loads = Vec::new();
+        for (k, point) in load.map_or(&[][..], |l| &l.point[..]).iter().enumerate() {
+            let (t, l) = locator.locate(point.at).ok_or_else(|| Error::Scene {
+                file: scene.source.clone(),
+                field: format!("load.point[{k}].at"),
+                reason: format!(
+                    "({}, {}) lies outside the meshed domain ω",
+                    point.at[0], point.at[1]
+                ),
+            })?;
+            point_loads.push((t, l, point.force));
         }
         let mut edge_loads = Vec::new();
         for edge in load.map_or(&[][..], |l| &l.edge[..]) {
@@ -333,8 +399,18 @@ impl<'m> NaghdiSystem<'m> {
         {
             simulated.push("boundary-conditions".into());
         }
-        if body_force.iter().any(|v| v.as_constant() != Some(0.0)) {
+        if surface_load
+            .force
+            .iter()
+            .any(|v| v.as_constant() != Some(0.0))
+        {
             simulated.push("body-force".into());
+        }
+        if surface_load.pressure.is_some() {
+            simulated.push("pressure".into());
+        }
+        if !point_loads.is_empty() {
+            simulated.push("point-loads".into());
         }
         if !edge_loads.is_empty() {
             simulated.push("edge-loads".into());
@@ -372,15 +448,23 @@ impl<'m> NaghdiSystem<'m> {
                     .zip(&mesh.vertices)
                     .map(|(p, &x)| p + height.eval(below(x)))
                     .collect();
-                for tags in &clamped_tags {
-                    // A clamped point has u = r = 0: its constraint value is 0.
+                // Where a part's fixed dofs pin the constraint value to 0, the
+                // obstacle must admit 0 there: checked on every part, whatever
+                // its condition, before anything is solved.
+                let pinned = constraint_pinned_vertices(mesh, &layout, &chart, &fixed);
+                for (tags, b) in &conditions {
+                    let lower: Vec<f64> = phi
+                        .iter()
+                        .zip(&pinned)
+                        .map(|(&p, &pin)| if pin { p } else { p.min(0.0) })
+                        .collect();
                     check_obstacle_against_boundary_values(
                         mesh,
                         scene,
-                        (&phi, None),
+                        (&lower, None),
                         &BoundaryValues::Zero,
                         tags.as_deref(),
-                        "clamped boundary",
+                        &format!("{} part `{}`", b.condition.name(), b.part),
                     )?;
                 }
                 let positive = phi.iter().filter(|p| **p > 0.0).count();
@@ -398,8 +482,9 @@ impl<'m> NaghdiSystem<'m> {
             layout,
             numbering,
             plate_reduction,
-            body_force,
+            surface_load,
             edge_loads,
+            point_loads,
             height,
             phi,
             phi_positive_vertices,
@@ -488,7 +573,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             &self.chart,
             &self.material,
             self.rho,
-            &self.body_force,
+            &self.surface_load,
             &self.numbering,
         );
         for &(tag, traction, moment) in &self.edge_loads {
@@ -501,6 +586,9 @@ impl ModelSystem for NaghdiSystem<'_> {
                 moment,
                 &mut f_full,
             );
+        }
+        for &(t, l, force) in &self.point_loads {
+            add_point_load(self.mesh, &self.layout, t, l, force, &mut f_full);
         }
         let mut problem = restrict_shell(&self.layout, a, &f_full, &self.numbering);
         if problem.n_primal < problem.n() {
@@ -636,6 +724,9 @@ impl ModelSystem for NaghdiSystem<'_> {
             attrs.push(("rho", AttrValue::F64(self.rho)));
             attrs.push(("tangency_scale", AttrValue::F64(self.tangency_scale.get())));
         }
+        let (strain_energy, external_work) = problem.energies(&report.x);
+        attrs.push(("strain_energy", AttrValue::F64(strain_energy)));
+        attrs.push(("external_work", AttrValue::F64(external_work)));
         attrs.push(("u3_min", AttrValue::F64(u3_min)));
         attrs.push(("u3_max", AttrValue::F64(u3_max)));
         for (c, (lo_name, hi_name)) in [("u1_min", "u1_max"), ("u2_min", "u2_max")]
@@ -747,7 +838,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             chart: &self.chart,
             material: &self.material,
             rho: self.rho,
-            load: &self.body_force,
+            load: &self.surface_load,
             tangent_tests: self.layout.psi().is_none() || self.plate_reduction,
             contact,
         };
