@@ -398,6 +398,11 @@ impl Tree {
                         t.add_simplified(Node::Binary(Binary::Mul, slope, da))?
                     }
                 }
+                Node::Binary(Binary::Pow, a, b)
+                    if self.nodes[a as usize] == Node::Variable(Variable::R) =>
+                {
+                    radial_power_derivative(&mut t, var, a, b, me, &d)?
+                }
                 Node::Binary(op, a, b) => binary_derivative(&mut t, op, a, b, me, &d)?,
                 Node::If(c, a, b) => t.add_simplified(Node::If(c, d[a as usize], d[b as usize]))?,
             };
@@ -470,6 +475,29 @@ fn unary_slope(t: &mut Tree, f: Function, a: u32, me: u32) -> Result<u32, String
             t.add(Node::If(negative, minus, one))?
         }
     })
+}
+
+/// ∂(r^b)/∂var = b r^(b−2) var for a constant b: finite at r = 0 for b ≥ 2
+/// (r² = x² + y² is smooth there, its derivatives 2x, 2y), where the chain
+/// rule through ∂r/∂x = x/r would divide by zero. A b that varies takes the
+/// general rule.
+fn radial_power_derivative(
+    t: &mut Tree,
+    var: Variable,
+    r: u32,
+    b: u32,
+    me: u32,
+    d: &[u32],
+) -> Result<u32, String> {
+    if t.number(d[b as usize]) != Some(0.0) {
+        return binary_derivative(t, Binary::Pow, r, b, me, d);
+    }
+    let two = t.add(Node::Number(2.0))?;
+    let lowered = t.add(Node::Binary(Binary::Sub, b, two))?;
+    let power = t.add(Node::Binary(Binary::Pow, r, lowered))?;
+    let slope = t.add_simplified(Node::Binary(Binary::Mul, b, power))?;
+    let coordinate = t.add(Node::Variable(var))?;
+    t.add_simplified(Node::Binary(Binary::Mul, slope, coordinate))
 }
 
 /// ∂(a op b) for the node `me` = a op b, with d[i] the derivative of node i.
@@ -1541,6 +1569,24 @@ mod tests {
         ] {
             check_derivatives(text, &points);
         }
+        // r^2 and r^4 are smooth at the origin, and so are their derivatives.
+        for text in ["r^2", "0.05 + 0.3*r^2", "r^4"] {
+            let e = Expression::parse(text).unwrap();
+            for var in [Variable::X, Variable::Y] {
+                let d = e.derivative(var).unwrap();
+                let dd = d.derivative(Variable::X).unwrap();
+                assert_eq!(d.eval([0.0, 0.0]), 0.0, "∂{var:?} {text} at 0");
+                assert!(dd.eval([0.0, 0.0]).is_finite(), "∂x∂{var:?} {text} at 0");
+            }
+            check_derivatives(text, &points);
+        }
+        let dxx = Expression::parse("0.3*r^2")
+            .unwrap()
+            .derivative(Variable::X)
+            .unwrap()
+            .derivative(Variable::X)
+            .unwrap();
+        assert!((dxx.eval([0.0, 0.0]) - 0.6).abs() < 1e-15);
         // Exact zeros stay exact.
         let e = Expression::parse("sqrt(x)").unwrap();
         assert_eq!(e.derivative(Variable::Y).unwrap().as_constant(), Some(0.0));
