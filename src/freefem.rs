@@ -468,12 +468,20 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
     let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
     let spaces = PsriSpaces::of(mesh);
     let rule = psri_weight_rule(scene, mesh, shell.thickness)?;
-    if scene.load.as_ref().is_some_and(|l| !l.edge.is_empty()) {
-        return Err(scene_error(
-            scene,
-            "load.edge",
-            format!("the FreeFEM script {PSRI_SCRIPT} has no edge loads"),
-        ));
+    if let Some(load) = &scene.load {
+        for (key, given) in [
+            ("load.edge", !load.edge.is_empty()),
+            ("load.pressure", load.pressure.is_some()),
+            ("load.point", !load.point.is_empty()),
+        ] {
+            if given {
+                return Err(scene_error(
+                    scene,
+                    key,
+                    format!("the FreeFEM script {PSRI_SCRIPT} has constant body forces only, not `{key}`"),
+                ));
+            }
+        }
     }
     let (chart, params): (&str, Vec<(&str, f64)>) = match shell.chart {
         Chart::HyperbolicParaboloid { r, offset } => {
@@ -485,14 +493,7 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
         }
         Chart::CurvatureKink { r, offset } => ("kink", vec![("-R", r), ("-offset", offset)]),
         Chart::Sphere { .. } | Chart::Cone { .. } | Chart::Parametric(_) | Chart::Graph(_) => {
-            return Err(scene_error(
-                scene,
-                "shell.chart",
-                format!(
-                    "the FreeFEM script {PSRI_SCRIPT} has the hyperbolic-paraboloid, plate, cylinder and curvature-kink charts, not {}",
-                    shell.chart.kind()
-                ),
-            ))
+            ("parametric", vec![])
         }
     };
     let mut a: Vec<String> = vec![
@@ -542,6 +543,9 @@ fn material_and_load_args(scene: &Scene, shell: &ShellSpec) -> Result<Vec<String
 /// the script's "scene functions" block; None when the script's defaults
 /// (constant g, the paraboloid) are the scene.
 fn scene_functions(scene: &Scene) -> Option<String> {
+    if let Some(shell) = &scene.shell {
+        return chart_functions(&shell.chart);
+    }
     let g = scene.load.as_ref().and_then(|l| l.g.as_ref());
     let obstacle = scene.obstacle.as_ref()?;
     let expression_load = g.is_some_and(|g| g.as_constant().is_none());
@@ -562,6 +566,60 @@ fn scene_functions(scene: &Scene) -> Option<String> {
             upper.freefem()
         )),
         None => text.push_str("func phiUpper = 0.;\nbool twoSided = false;\n"),
+    }
+    Some(text)
+}
+
+/// The `func`s of a chart the shell script takes as `-chart parametric`: φ_z
+/// and the exact first and second derivatives of φ, in FreeFEM's syntax (the
+/// parametric and graph charts' expressions and their symbolic derivatives;
+/// the sphere and cone presets spelled as parametric charts). None for the
+/// presets the script has built in.
+fn chart_functions(chart: &Chart) -> Option<String> {
+    let spelled;
+    let e = match chart {
+        Chart::Sphere { radius, height } => {
+            let r = format!("{radius:e}");
+            spelled = Chart::parametric([
+                &format!("{r}*cos(y)*cos(x)"),
+                &format!("{r}*cos(y)*sin(x)"),
+                &format!("{height:e} + {r}*sin(y)"),
+            ]);
+            spelled.as_ref().ok()?.expressions()?
+        }
+        Chart::Cone { half_angle, height } => {
+            let (s, c) = half_angle.sin_cos();
+            spelled = Chart::parametric([
+                &format!("x*{s:e}*cos(y)"),
+                &format!("x*{s:e}*sin(y)"),
+                &format!("{height:e} + x*{c:e}"),
+            ]);
+            spelled.as_ref().ok()?.expressions()?
+        }
+        chart => chart.expressions()?,
+    };
+    let mut text = format!(
+        "func parZ = {};
+",
+        e.phi[2].freefem()
+    );
+    for (name, k) in [("A1", 0), ("A2", 1)] {
+        for (c, axis) in ["x", "y", "z"].into_iter().enumerate() {
+            text.push_str(&format!(
+                "func par{name}{axis} = {};
+",
+                e.d[c][k].freefem()
+            ));
+        }
+    }
+    for (name, k) in [("D11", 0), ("D12", 1), ("D22", 2)] {
+        for (c, axis) in ["x", "y", "z"].into_iter().enumerate() {
+            text.push_str(&format!(
+                "func par{name}{axis} = {};
+",
+                e.dd[c][k].freefem()
+            ));
+        }
     }
     Some(text)
 }

@@ -227,6 +227,53 @@ fn roof_boundary_conditions_match_freefem() {
     eprintln!("Scordelis-Lo n=4: worst {worst:.2e}; Rust {rs:.2} s, FreeFEM {fs:.2} s (processes)");
 }
 
+/// Charts from the scene reach the twin as the expressions and their
+/// symbolic derivatives (`-chart parametric`, the script's scene-functions
+/// block): the Scordelis–Lo quarter on its parametric cylinder, the same roof
+/// on the sphere preset (spelled for FreeFEM as a parametric chart), and the
+/// thesis' hypar as a graph in contact after K Uzawa iterations.
+#[test]
+fn charts_from_the_scene_match_freefem() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = set_args(&["mesh.n=4", "output.plots=[]"]);
+    let scene = scene_arg("shell/scordelis-lo-parametric");
+    let (rust, ff, _, _) = both(dir.path(), "roof", &scene, &extra);
+    let worst = assert_agree(&rust, &ff, &["u", "theta"], "parametric roof n=4");
+    let sphere = set_args(&[
+        "mesh.n=4",
+        "output.plots=[]",
+        "mesh.parameters={x0 = 0.0, x1 = 0.6, y0 = 0.0, y1 = 0.5}",
+        r#"shell.chart={kind="sphere", radius=25.0, height=-20.0}"#,
+        "output.probe=[0.6, 0.0]",
+        r#"shell.boundary=[{part="west", condition="clamped"}, {part="south", condition="clamped"}]"#,
+    ]);
+    let (rust, ff, _, _) = both(dir.path(), "sphere", &scene, &sphere);
+    let worst_sphere = assert_agree(&rust, &ff, &["u", "theta"], "sphere band n=4");
+    let alpha = format!("solver.alpha={ALPHA}");
+    let max_iter = format!("solver.max_iter={K}");
+    let extra = set_args(&[
+        "mesh.n=8",
+        r#"shell.chart={kind="graph", height="(x^2 - y^2)/5000 + 1.4"}"#,
+        "solver.method=uzawa",
+        &alpha,
+        "solver.step_form=mean",
+        "solver.stop=thesis",
+        "solver.thesis_tol=1e-300",
+        &max_iter,
+        "output.plots=[]",
+    ]);
+    let (rust, ff, _, _) = both(dir.path(), "graph", &scene_arg("shell/hypar-psri"), &extra);
+    let worst_graph = assert_agree(&rust, &ff, &["u", "theta", "lambda"], "graph hypar n=8");
+    let b = read_result(&ff).unwrap();
+    assert!(
+        dofs(&b, "lambda").iter().any(|l| *l > 0.0),
+        "graph hypar: in contact"
+    );
+    eprintln!(
+        "parametric roof {worst:.2e}, sphere {worst_sphere:.2e}, graph hypar {worst_graph:.2e}"
+    );
+}
+
 /// The name of the PSRI element (`element` in a scene), as the shell
 /// scenes give it.
 fn psri_element() -> String {
