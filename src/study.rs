@@ -870,6 +870,12 @@ pub fn write_convergence_plots(
     Ok(files)
 }
 
+/// Snakemake expands wildcards (`{name}`) in a rule's string params, and
+/// `{{` does not escape them there: an out dir, scene path or override
+/// holding a brace would be a WildcardError. A param given as a function is
+/// taken as it is.
+const PARAM: &str = "lambda wildcards: ";
+
 /// Writes `<out_dir>/Snakefile`: the study as a Snakemake workflow. One rule
 /// per run runs `obstacle solve` on the run's scene with the study's
 /// overrides into the result file the in-process study writes
@@ -938,8 +944,9 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
          rule table:\n    input: {logs}\n    output: {tables}\n    shell:\n        \
          \"{{OBSTACLE:q}} study {{STUDY:q}} --out-dir {{OUT_DIR:q}} --from-results --quiet\"",
         name = study.name,
-        study = study_abs.display(),
-        dir = dir_abs.display(),
+        // In a comment line: a newline in a path must not end it.
+        study = study_abs.display().to_string().escape_debug(),
+        dir = dir_abs.display().to_string().escape_debug(),
         exe = path_str(obstacle),
         study_py = path_str(&study_abs),
         scene_py = path_str(&scene_abs),
@@ -958,7 +965,7 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
         let _ = writeln!(
             s,
             "\nrule run_{i:03}:\n    output: {log}\n    params:\n        \
-             out={out},\n        failed={failed},\n        sets=[{sets}],\n    shell:\n        \
+             out={PARAM}{out},\n        failed={PARAM}{failed},\n        sets={PARAM}[{sets}],\n    shell:\n        \
              \"(cd {{SCENE_DIR:q}} && {{OBSTACLE:q}} solve {{SCENE:q}} --quiet --out {{params.out:q}} \
              --failure-marker {{params.failed:q}} {{params.sets:q}}) > {{output:q}}\"",
             log = logs[i],

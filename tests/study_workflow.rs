@@ -182,3 +182,20 @@ fn a_stale_result_is_refused() {
     );
     assert!(!out.join("flow.md").exists());
 }
+
+/// An out dir whose name holds Snakemake's wildcard braces runs as any
+/// other: the Snakefile's params are taken literally, not as patterns.
+#[test]
+fn braces_in_the_out_dir_are_no_wildcards() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = disk_study(
+        dir.path(),
+        ", \"mesh.n=4\"",
+        "[[sweep]]\nkey = \"solver.tol\"\nvalues = [1e-6]\n",
+    );
+    let flow = dir.path().join("out{x}}{");
+    run_workflow(&study, &flow);
+    assert!(flow.join("flow-000.h5").is_file());
+    let (md, _) = common::study_tables(&flow, "flow");
+    assert_eq!(md.matches("| 0.000001 | ").count(), 1, "{md}");
+}
