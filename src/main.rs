@@ -16,6 +16,7 @@ use obstacle_fem::study::{
     csv_table, history_tables, markdown_table, reference_study, rows_from_results, run_study,
     write_convergence_plots, write_snakefile, write_work_precision, Study,
 };
+use obstacle_fem::{out, outln};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -227,7 +228,7 @@ fn bench(command: BenchCommand) -> Result<()> {
             tols,
         } => {
             let line = run_case(&scene, &set, &out, linear, &tols)?;
-            println!("BENCH {line}");
+            outln!("BENCH {line}");
             Ok(())
         }
         BenchCommand::Study {
@@ -275,7 +276,7 @@ fn run(cli: Cli) -> Result<()> {
             let s = match (run_scene(&scene, &out, !quiet), &failure_marker) {
                 (Err(e @ Error::Numerical { .. }), Some(marker)) => {
                     write_failure_marker(&scene, marker, &e.to_string())?;
-                    println!("{}: failed: {e} → {}", scene.name, marker.display());
+                    outln!("{}: failed: {e} → {}", scene.name, marker.display());
                     return Ok(());
                 }
                 (result, marker) => {
@@ -291,7 +292,7 @@ fn run(cli: Cli) -> Result<()> {
                     s
                 }
             };
-            println!(
+            outln!(
                 "{}: {} on {} triangles ({} dofs), {} iterations, stop: {}, converged: {}, KKT {:.3e}, {:.3}s → {}",
                 s.scene,
                 s.element,
@@ -305,9 +306,12 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
             if let Some(e) = s.errors {
-                println!(
+                outln!(
                     "  errors vs exact: L² {:.4e}, H¹ {:.4e}; contact radius {:.5} (exact {:.5})",
-                    e.l2, e.h1, e.contact_radius, e.exact_contact_radius
+                    e.l2,
+                    e.h1,
+                    e.contact_radius,
+                    e.exact_contact_radius
                 );
             }
             if !s.converged {
@@ -323,7 +327,7 @@ fn run(cli: Cli) -> Result<()> {
             let out =
                 out.unwrap_or_else(|| PathBuf::from(format!("build/meshes/{}.msh", scene.name)));
             let mesh = mesh_command(&scene, &out)?;
-            println!(
+            outln!(
                 "{}: {} vertices, {} triangles, {} edges, h = {:.4}",
                 out.display(),
                 mesh.n_vertices(),
@@ -334,12 +338,12 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { file } => {
-            print!("{}", summary(&read_result(&file)?));
+            out!("{}", summary(&read_result(&file)?));
             // An adaptive result: every step read back, one table row each.
             let steps = obstacle_fem::output::read_steps(&file)?;
             if !steps.is_empty() {
-                println!("adaptive steps: {}", steps.len());
-                print!(
+                outln!("adaptive steps: {}", steps.len());
+                out!(
                     "{}",
                     obstacle_fem::adapt::steps_table(&obstacle_fem::adapt::rows_of(&steps))
                 );
@@ -374,7 +378,7 @@ fn run(cli: Cli) -> Result<()> {
             std::fs::create_dir_all(&out_dir).map_err(|e| {
                 obstacle_fem::Error::output(&out_dir, format!("cannot create the folder: {e}"))
             })?;
-            print!(
+            out!(
                 "{}",
                 obstacle_fem::adapt::compare_command(&scene, &out_dir)?
             );
@@ -384,12 +388,12 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench { command } => bench(command),
         Command::Report { result, out } => {
             let page = obstacle_fem::report::report_command(&result, out.as_deref())?;
-            println!("report: {}", page.display());
+            outln!("report: {}", page.display());
             Ok(())
         }
         Command::Index { build, out } => {
             let page = obstacle_fem::report::index_command(&build, out.as_deref())?;
-            println!("index: {}", page.display());
+            outln!("index: {}", page.display());
             Ok(())
         }
         Command::Study {
@@ -405,7 +409,7 @@ fn run(cli: Cli) -> Result<()> {
                     Error::output("obstacle", format!("cannot find this program's path: {e}"))
                 })?;
                 let snakefile = write_snakefile(&study, &out_dir, &exe)?;
-                println!(
+                outln!(
                     "workflow: {} (run `snakemake -j N` in {})",
                     snakefile.display(),
                     out_dir.display()
@@ -443,9 +447,9 @@ fn run(cli: Cli) -> Result<()> {
             write_text(&table("md")?, &md)?;
             write_text(&table("csv")?, &csv_table(&spec, &rows))?;
             outputs.commit()?;
-            print!("{md}");
+            out!("{md}");
             for f in plots {
-                println!("plot: {}", f.display());
+                outln!("plot: {}", f.display());
             }
             Ok(())
         }

@@ -161,3 +161,46 @@ fn bad_input_is_one_clear_error_and_writes_nothing() {
     );
     assert!(!Path::new(&foreign).with_extension("xdmf").exists());
 }
+
+/// A reader that is gone before anything is printed (`obstacle info FILE |
+/// head -0`): the command ends quietly with 141 (128 + SIGPIPE), no panic,
+/// nothing on stderr. Also `compare` (a table) and `solve` (its line after
+/// the result is in place, which stays).
+#[test]
+fn a_closed_output_pipe_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r.h5");
+    let o = common::solve_membrane(&out, &["mesh.n=4", "output.plots=[]"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let r = out.to_str().unwrap();
+    let again = dir.path().join("again.h5");
+    let commands: [&[&str]; 3] = [
+        &["info", r],
+        &["compare", r, r],
+        &[
+            "solve",
+            SCENE,
+            "--quiet",
+            "--set",
+            "mesh.n=4",
+            "--set",
+            "output.plots=[]",
+            "--out",
+            again.to_str().unwrap(),
+        ],
+    ];
+    for args in commands {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_obstacle"))
+            .args(args)
+            .env("CI", "1")
+            .stdout(writer)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(141), "{args:?}: {stderr}");
+        assert!(stderr.is_empty(), "{args:?}: {stderr}");
+    }
+    assert!(again.is_file(), "the solve's result is in place");
+}

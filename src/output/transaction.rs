@@ -67,14 +67,21 @@ fn install_signal_cleanup() {
         };
         std::thread::spawn(move || {
             if let Some(signal) = signals.forever().next() {
-                let pending = PENDING.lock().unwrap_or_else(|e| e.into_inner());
-                for path in pending.iter() {
-                    remove_all(path);
-                }
-                std::process::exit(128 + signal);
+                exit_after_cleanup(128 + signal);
             }
         });
     });
+}
+
+/// Ends the process with `status` after removing every registered temporary
+/// (staging folders, gmsh/FreeFEM files): the end of a run interrupted by a
+/// signal or by a closed output pipe (`console`).
+pub fn exit_after_cleanup(status: i32) -> ! {
+    let pending = PENDING.lock().unwrap_or_else(|e| e.into_inner());
+    for path in pending.iter() {
+        remove_all(path);
+    }
+    std::process::exit(status)
 }
 
 /// Removes the staging folders in `folder` left by runs that died without
