@@ -168,6 +168,19 @@ impl Study {
         out_dir.join(format!("{}-{:03}.h5", self.name, i))
     }
 
+    /// The scene of each of `runs` (this study's, at `study_path`), every
+    /// one loaded and checked: the first bad override is the error.
+    pub fn run_scenes(
+        &self,
+        study_path: &Path,
+        runs: &[Vec<(String, String)>],
+    ) -> Result<Vec<Scene>> {
+        let scene_path = self.scene_path(study_path);
+        runs.iter()
+            .map(|labels| Scene::load(&scene_path, &self.overrides(labels)))
+            .collect()
+    }
+
     /// The override lists of all runs, outer sweeps first.
     pub fn runs(&self) -> Vec<Vec<(String, String)>> {
         let mut runs: Vec<Vec<(String, String)>> = vec![vec![]];
@@ -201,12 +214,14 @@ pub fn run_study(
     jobs: usize,
 ) -> Result<Vec<StudyRow>> {
     let study = Study::load(study_path)?;
-    let scene_path = study.scene_path(study_path);
     let runs = study.runs();
+    // Every run's scene before any run: a bad override in the last run must
+    // not come after the first runs replaced earlier results.
+    let scenes = study.run_scenes(study_path, &runs)?;
     let run = |i: usize| {
         run_one(
             &study,
-            &scene_path,
+            &scenes[i],
             out_dir,
             i,
             &runs[i],
@@ -251,7 +266,7 @@ pub fn run_study(
 /// `<out_dir>/<study>-<i>.h5`. A numerical failure becomes a row.
 fn run_one(
     study: &Study,
-    scene_path: &Path,
+    scene: &Scene,
     out_dir: &Path,
     i: usize,
     labels: &[(String, String)],
@@ -259,13 +274,12 @@ fn run_one(
     jobs: usize,
 ) -> Result<StudyRow> {
     let overrides = study.overrides(labels);
-    let scene = Scene::load(scene_path, &overrides)?;
     let out = study.result_path(out_dir, i);
-    let (summary, failure) = match run_scene(&scene, &out, show_progress && jobs <= 1) {
+    let (summary, failure) = match run_scene(scene, &out, show_progress && jobs <= 1) {
         Ok(summary) => (summary, None),
         Err(e @ Error::Numerical { .. }) => {
             eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
-            (failed_summary(&scene), Some(e.to_string()))
+            (failed_summary(scene), Some(e.to_string()))
         }
         Err(e) => return Err(e),
     };
@@ -310,14 +324,13 @@ pub fn failure_marker_path(result: &Path) -> PathBuf {
 /// neither file is an error naming the result file.
 pub fn rows_from_results(study_path: &Path, out_dir: &Path) -> Result<Vec<StudyRow>> {
     let study = Study::load(study_path)?;
-    let scene_path = study.scene_path(study_path);
+    let runs = study.runs();
+    let scenes = study.run_scenes(study_path, &runs)?;
     let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    study
-        .runs()
-        .into_iter()
+    runs.into_iter()
+        .zip(scenes)
         .enumerate()
-        .map(|(i, labels)| {
-            let scene = Scene::load(&scene_path, &study.overrides(&labels))?;
+        .map(|(i, (labels, scene))| {
             let out = study.result_path(out_dir, i);
             let marker = failure_marker_path(&out);
             let (result, failed) = (modified(&out), modified(&marker));
@@ -896,9 +909,7 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
     }
     let scene_path = study.scene_path(study_path);
     let runs = study.runs();
-    for labels in &runs {
-        Scene::load(&scene_path, &study.overrides(labels))?;
-    }
+    study.run_scenes(study_path, &runs)?;
     let outputs = OutputTransaction::new(
         out_dir,
         "Snakefile",
