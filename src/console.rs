@@ -11,6 +11,12 @@
 
 use std::io::Write as _;
 
+/// The exit status of `solve` for a run stopped by `solver.max_iter` before
+/// it converged or met the scene's stop rule (its result is written and
+/// records `converged = false`, `stop_reason = "max_iter"`). 0 is success,
+/// 1 an error (bad input, a numerical failure, a usage error).
+pub const NOT_CONVERGED_STATUS: u8 = 2;
+
 /// The exit status of a command whose output reader went away: 128 + SIGPIPE.
 pub const BROKEN_PIPE_STATUS: i32 = 128 + 13;
 

@@ -336,10 +336,7 @@ pub fn rows_from_results(study_path: &Path, out_dir: &Path) -> Result<Vec<StudyR
             let (result, failed) = (modified(&out), modified(&marker));
             let (summary, failure) = match (result, failed) {
                 (_, Some(failed)) if result.is_none_or(|r| failed >= r) => {
-                    let text = std::fs::read_to_string(&marker).map_err(|e| {
-                        Error::output(&marker, format!("cannot read the failure marker: {e}"))
-                    })?;
-                    let text = text.strip_suffix('\n').unwrap_or(&text).to_string();
+                    let text = crate::output::marker::read_marker(&marker)?;
                     (failed_summary(&scene), Some(text))
                 }
                 (Some(_), _) => (RunSummary::from_result(&out, &scene)?, None),

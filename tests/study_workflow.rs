@@ -94,7 +94,11 @@ fn a_failed_run_leaves_a_marker_and_a_failed_row() {
     check_success("study", &run_study(&study, &serial, &[]));
     let flow = dir.path().join("flow");
     run_workflow(&study, &flow);
-    let marker = std::fs::read_to_string(flow.join("flow-001.failed")).unwrap();
+    let marker_file = flow.join("flow-001.failed");
+    let marker = obstacle_fem::output::marker::read_marker(&marker_file).unwrap();
+    assert!(std::fs::read_to_string(&marker_file)
+        .unwrap()
+        .starts_with(obstacle_fem::output::marker::HEADER));
     assert!(!flow.join("flow-001.h5").exists());
     assert!(!flow.join("flow-000.failed").exists());
     let (md, csv) = common::study_tables(&flow, "flow");
