@@ -661,7 +661,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
         }
     }
     let md = bench_markdown(cfg, &rows, &floors) + &phase_rss_markdown(&phase_rss, tightest);
-    print!("{md}");
+    crate::out!("{md}");
     // The table, CSV and plots appear together (the runs' files are each their own).
     let outputs = OutputTransaction::new(out_dir, &cfg.name, &[config_path.to_path_buf()])?;
     let table = |ext: &str| outputs.stage(&out_dir.join(format!("{}.{ext}", cfg.name)));
@@ -670,7 +670,7 @@ pub fn run_bench(cfg: &BenchConfig, config_path: &Path, out_dir: &Path) -> Resul
     let plots = bench_plots(cfg, &rows, &floors, &outputs)?;
     outputs.commit()?;
     for f in plots {
-        println!("plot: {}", f.display());
+        crate::outln!("plot: {}", f.display());
     }
     Ok(rows)
 }
@@ -1242,8 +1242,8 @@ pub fn work_precision(
     write(&outputs.stage(&out_dir.join("report.md"))?, &md)?;
     write(&outputs.stage(&out_dir.join("work-precision.csv"))?, &csv)?;
     outputs.commit()?;
-    println!("{md}");
-    println!("report: {}", out_dir.join("report.md").display());
+    crate::outln!("{md}");
+    crate::outln!("report: {}", out_dir.join("report.md").display());
     Ok(())
 }
 

@@ -1318,7 +1318,7 @@ pub fn command(scene: &Scene, out: Option<PathBuf>, iterations: Option<usize>) -
         );
     }
     let r = run_freefem_scene(scene, &out, iterations)?;
-    println!(
+    crate::outln!(
         "{}: FreeFEM {ALGORITHM}, α = {}, {} iterations (stop: {}), process {:.3} s, loop {:.3} s ({:.3e} s/iteration) → {}",
         scene.name,
         r.alpha.map_or("-".into(), |a| format!("{a}")),

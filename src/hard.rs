@@ -309,7 +309,7 @@ pub fn command(dir: &Path, out_dir: &Path, set: &[String]) -> Result<()> {
     }
     let rows = run_all(dir, out_dir, &extra);
     let md = table(&rows);
-    print!("{md}");
+    crate::out!("{md}");
     let path = out_dir.join("hard.md");
     crate::output::write_text_atomically(&path, &md)?;
     let bad: Vec<&str> = rows

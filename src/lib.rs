@@ -16,6 +16,7 @@
 pub mod adapt;
 pub mod assembly;
 pub mod bench;
+pub mod console;
 pub mod error;
 pub mod expression;
 pub mod freefem;

@@ -6,8 +6,10 @@
 
 use clap::{Parser, Subcommand};
 use obstacle_fem::bench::{run_bench, run_case, work_precision, BenchConfig};
+use obstacle_fem::console::NOT_CONVERGED_STATUS;
 use obstacle_fem::error::{Error, Result};
 use obstacle_fem::mesh::Mesh;
+use obstacle_fem::output::marker::FailureMarker;
 use obstacle_fem::output::{read_result, summary, OutputTransaction};
 use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
@@ -16,6 +18,7 @@ use obstacle_fem::study::{
     csv_table, history_tables, markdown_table, reference_study, rows_from_results, run_study,
     write_convergence_plots, write_snakefile, write_work_precision, Study,
 };
+use obstacle_fem::{out, outln};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -33,6 +36,12 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Mesh, assemble and solve a scene; write FILE.h5 (+ .xdmf, .msh beside it).
+    ///
+    /// Exit status: 0 converged (KKT measures within solver.tol) or stopped by
+    /// the scene's own rule (stop = "thesis" met); 2 stopped by solver.max_iter
+    /// before that (the result is written and records converged = false,
+    /// stop_reason = "max_iter"); 1 an error. With --failure-marker, 0 whenever
+    /// the run's outcome is recorded (result or marker).
     Solve {
         scene: PathBuf,
         /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9
@@ -45,8 +54,11 @@ enum Command {
         #[arg(long)]
         quiet: bool,
         /// For workflow engines: a numerical failure (divergence, singular
-        /// matrix, ...) writes its message to this file and exits 0; success
-        /// removes it. Other errors still fail.
+        /// matrix, ...) writes its message to this file (a marker: its first
+        /// line says so) and exits 0, as does a run that did not converge;
+        /// success removes an earlier marker. Refused before the run: the
+        /// result or a file named after it, an input, an existing file that is
+        /// no marker. Other errors still fail.
         #[arg(long, value_name = "FILE")]
         failure_marker: Option<PathBuf>,
     },
@@ -70,10 +82,10 @@ enum Command {
         /// Result file (default: build/freefem/<scene name>.h5).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Exactly K Uzawa iterations (default: the scene's thesis stop, or, for
-        /// stop = "kkt", min(max_iter, 1000) iterations).
-        #[arg(long)]
-        iterations: Option<usize>,
+        /// Exactly K Uzawa iterations, K ≥ 1 (default: the scene's thesis stop, or,
+        /// for stop = "kkt", min(max_iter, 1000) iterations).
+        #[arg(long, value_name = "K", value_parser = clap::value_parser!(u64).range(1..))]
+        iterations: Option<u64>,
     },
     /// Compare two result files on the same mesh, field by field; exit 1 beyond tolerance.
     Compare {
@@ -227,7 +239,7 @@ fn bench(command: BenchCommand) -> Result<()> {
             tols,
         } => {
             let line = run_case(&scene, &set, &out, linear, &tols)?;
-            println!("BENCH {line}");
+            outln!("BENCH {line}");
             Ok(())
         }
         BenchCommand::Study {
@@ -251,8 +263,21 @@ fn bench(command: BenchCommand) -> Result<()> {
 fn main() -> ExitCode {
     // Every Newton step allocates and frees factors of the same sizes.
     obstacle_fem::linalg::keep_freed_memory();
-    match run(Cli::parse()) {
-        Ok(()) => ExitCode::SUCCESS,
+    // clap's usage errors would exit with 2, which means "not converged" here.
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return if e.exit_code() == 0 {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            };
+        }
+    };
+    match run(cli.command) {
+        Ok(Outcome::Done) => ExitCode::SUCCESS,
+        Ok(Outcome::NotConverged) => ExitCode::from(NOT_CONVERGED_STATUS),
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
@@ -260,70 +285,95 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(cli: Cli) -> Result<()> {
-    match cli.command {
+/// How a command that did not fail ends: its exit status.
+enum Outcome {
+    Done,
+    /// A run stopped by `solver.max_iter` before the scene's stop rule was
+    /// met; its result is written and says so.
+    NotConverged,
+}
+
+/// `obstacle solve`. With a failure marker a numerical failure is recorded
+/// there and a run that did not converge is recorded in its result: both
+/// are outcomes for the workflow (exit 0), which tabulates them.
+fn solve(
+    scene: &Path,
+    set: &[String],
+    out: Option<PathBuf>,
+    quiet: bool,
+    failure_marker: Option<&Path>,
+) -> Result<Outcome> {
+    let scene = Scene::load(scene, &command_line_overrides(set))?;
+    let out = out.unwrap_or_else(|| PathBuf::from(format!("build/results/{}.h5", scene.name)));
+    // Checked before the run: a marker path that is not the command's own
+    // is refused now, not after a long solve.
+    let marker = failure_marker
+        .map(|m| FailureMarker::new(m, &out, &scene.input_files()))
+        .transpose()?;
+    let s = match (run_scene(&scene, &out, !quiet), &marker) {
+        (Err(e @ Error::Numerical { .. }), Some(marker)) => {
+            marker.write(&e.to_string())?;
+            outln!("{}: failed: {e} → {}", scene.name, marker.path().display());
+            return Ok(Outcome::Done);
+        }
+        (result, marker) => {
+            let s = result?;
+            if let Some(marker) = marker {
+                marker.remove_stale()?;
+            }
+            s
+        }
+    };
+    outln!(
+        "{}: {} on {} triangles ({} dofs), {} iterations, stop: {}, converged: {}, KKT {:.3e}, {:.3}s → {}",
+        s.scene,
+        s.element,
+        s.n_triangles,
+        s.n_dofs,
+        s.iterations,
+        s.stop_reason,
+        s.converged,
+        s.measures.kkt,
+        s.wall_seconds,
+        out.display()
+    );
+    if let Some(e) = s.errors {
+        outln!(
+            "  errors vs exact: L² {:.4e}, H¹ {:.4e}; contact radius {:.5} (exact {:.5})",
+            e.l2,
+            e.h1,
+            e.contact_radius,
+            e.exact_contact_radius
+        );
+    }
+    if !s.converged {
+        eprintln!(
+            "warning: not converged: relative KKT measure {:.3e} > tol {:.1e} after {} iterations (stop: {})",
+            s.measures.kkt, scene.solver.tol, s.iterations, s.stop_reason
+        );
+    }
+    Ok(if s.stopped_as_asked() || marker.is_some() {
+        Outcome::Done
+    } else {
+        Outcome::NotConverged
+    })
+}
+
+fn run(command: Command) -> Result<Outcome> {
+    let done: Result<()> = match command {
         Command::Solve {
             scene,
             set,
             out,
             quiet,
             failure_marker,
-        } => {
-            let scene = Scene::load(&scene, &command_line_overrides(&set))?;
-            let out =
-                out.unwrap_or_else(|| PathBuf::from(format!("build/results/{}.h5", scene.name)));
-            let s = match (run_scene(&scene, &out, !quiet), &failure_marker) {
-                (Err(e @ Error::Numerical { .. }), Some(marker)) => {
-                    write_failure_marker(&scene, marker, &e.to_string())?;
-                    println!("{}: failed: {e} → {}", scene.name, marker.display());
-                    return Ok(());
-                }
-                (result, marker) => {
-                    let s = result?;
-                    if let Some(marker) = marker.as_deref().filter(|m| m.exists()) {
-                        std::fs::remove_file(marker).map_err(|e| {
-                            Error::output(
-                                marker,
-                                format!("cannot remove the old failure marker: {e}"),
-                            )
-                        })?;
-                    }
-                    s
-                }
-            };
-            println!(
-                "{}: {} on {} triangles ({} dofs), {} iterations, stop: {}, converged: {}, KKT {:.3e}, {:.3}s → {}",
-                s.scene,
-                s.element,
-                s.n_triangles,
-                s.n_dofs,
-                s.iterations,
-                s.stop_reason,
-                s.converged,
-                s.measures.kkt,
-                s.wall_seconds,
-                out.display()
-            );
-            if let Some(e) = s.errors {
-                println!(
-                    "  errors vs exact: L² {:.4e}, H¹ {:.4e}; contact radius {:.5} (exact {:.5})",
-                    e.l2, e.h1, e.contact_radius, e.exact_contact_radius
-                );
-            }
-            if !s.converged {
-                eprintln!(
-                    "warning: not converged: relative KKT measure {:.3e} > tol {:.1e} after {} iterations (stop: {})",
-                    s.measures.kkt, scene.solver.tol, s.iterations, s.stop_reason
-                );
-            }
-            Ok(())
-        }
+        } => return solve(&scene, &set, out, quiet, failure_marker.as_deref()),
         Command::Mesh { scene, set, out } => {
             let scene = Scene::load(&scene, &command_line_overrides(&set))?;
             let out =
                 out.unwrap_or_else(|| PathBuf::from(format!("build/meshes/{}.msh", scene.name)));
             let mesh = mesh_command(&scene, &out)?;
-            println!(
+            outln!(
                 "{}: {} vertices, {} triangles, {} edges, h = {:.4}",
                 out.display(),
                 mesh.n_vertices(),
@@ -334,12 +384,12 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { file } => {
-            print!("{}", summary(&read_result(&file)?));
+            out!("{}", summary(&read_result(&file)?));
             // An adaptive result: every step read back, one table row each.
             let steps = obstacle_fem::output::read_steps(&file)?;
             if !steps.is_empty() {
-                println!("adaptive steps: {}", steps.len());
-                print!(
+                outln!("adaptive steps: {}", steps.len());
+                out!(
                     "{}",
                     obstacle_fem::adapt::steps_table(&obstacle_fem::adapt::rows_of(&steps))
                 );
@@ -354,7 +404,7 @@ fn run(cli: Cli) -> Result<()> {
         } => obstacle_fem::freefem::command(
             &Scene::load(&scene, &command_line_overrides(&set))?,
             out,
-            iterations,
+            iterations.map(|k| k as usize),
         ),
         Command::Compare {
             a,
@@ -374,7 +424,7 @@ fn run(cli: Cli) -> Result<()> {
             std::fs::create_dir_all(&out_dir).map_err(|e| {
                 obstacle_fem::Error::output(&out_dir, format!("cannot create the folder: {e}"))
             })?;
-            print!(
+            out!(
                 "{}",
                 obstacle_fem::adapt::compare_command(&scene, &out_dir)?
             );
@@ -384,12 +434,12 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench { command } => bench(command),
         Command::Report { result, out } => {
             let page = obstacle_fem::report::report_command(&result, out.as_deref())?;
-            println!("report: {}", page.display());
+            outln!("report: {}", page.display());
             Ok(())
         }
         Command::Index { build, out } => {
             let page = obstacle_fem::report::index_command(&build, out.as_deref())?;
-            println!("index: {}", page.display());
+            outln!("index: {}", page.display());
             Ok(())
         }
         Command::Study {
@@ -405,12 +455,12 @@ fn run(cli: Cli) -> Result<()> {
                     Error::output("obstacle", format!("cannot find this program's path: {e}"))
                 })?;
                 let snakefile = write_snakefile(&study, &out_dir, &exe)?;
-                println!(
+                outln!(
                     "workflow: {} (run `snakemake -j N` in {})",
                     snakefile.display(),
                     out_dir.display()
                 );
-                return Ok(());
+                return Ok(Outcome::Done);
             }
             let rows = if from_results {
                 rows_from_results(&study, &out_dir)?
@@ -443,13 +493,14 @@ fn run(cli: Cli) -> Result<()> {
             write_text(&table("md")?, &md)?;
             write_text(&table("csv")?, &csv_table(&spec, &rows))?;
             outputs.commit()?;
-            print!("{md}");
+            out!("{md}");
             for f in plots {
-                println!("plot: {}", f.display());
+                outln!("plot: {}", f.display());
             }
             Ok(())
         }
-    }
+    };
+    done.map(|()| Outcome::Done)
 }
 
 /// `obstacle mesh`: the scene's mesh, validated, at `out` (a `.msh` that is
@@ -471,17 +522,6 @@ fn mesh_command(scene: &Scene, out: &Path) -> Result<Mesh> {
     }
     outputs.commit()?;
     Ok(mesh)
-}
-
-/// `solve --failure-marker`: the error of a run that failed numerically, in
-/// its own output transaction (never over an input of the scene).
-fn write_failure_marker(scene: &Scene, marker: &Path, error: &str) -> Result<()> {
-    let folder = marker.parent().unwrap_or(Path::new(""));
-    let stem = marker.file_stem().and_then(|s| s.to_str()).unwrap_or("run");
-    let outputs = OutputTransaction::new(folder, stem, &scene.input_files())?;
-    write_text(&outputs.stage(marker)?, &format!("{error}\n"))?;
-    outputs.commit()?;
-    Ok(())
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {

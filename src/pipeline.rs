@@ -68,6 +68,13 @@ pub struct RunSummary {
 }
 
 impl RunSummary {
+    /// Whether the run ended as its scene asked: converged (the KKT measures
+    /// within `solver.tol`), or stopped by the scene's own rule (`stop =
+    /// "thesis"` met), not by running out of iterations (`solver.max_iter`).
+    pub fn stopped_as_asked(&self) -> bool {
+        self.converged || self.stop_reason != crate::solvers::STOP_MAX_ITER
+    }
+
     /// The summary of a finished run: `data` is what was written to `out`,
     /// `start` when the run began.
     pub fn of_run(

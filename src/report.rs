@@ -158,10 +158,50 @@ fn page_head(title: &str) -> String {
     )
 }
 
-/// `path` relative to `folder` when below it (as written by the runs), else as given.
+/// A link from a page in `folder` to `path`: relative to the page (with
+/// `..` where `path` is not below it), so the page moves with its folder,
+/// and each segment percent-encoded (RFC 3986 unreserved characters kept),
+/// so a name with `#`, `?`, `%` or a space is a file name, not a fragment,
+/// query or escape. Both paths are resolved first: `folder` as given may be
+/// relative to another folder than `path`.
 fn relative_link(path: &Path, folder: &Path) -> String {
-    let rel = path.strip_prefix(folder).unwrap_or(path);
-    rel.to_string_lossy().into_owned()
+    let resolve = |p: &Path| {
+        let p = if p.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            p
+        };
+        p.canonicalize()
+            .or_else(|_| std::path::absolute(p))
+            .unwrap_or_else(|_| p.to_path_buf())
+    };
+    let (to, from) = (resolve(path), resolve(folder));
+    let common = to
+        .components()
+        .zip(from.components())
+        .take_while(|(a, b)| a == b)
+        .count();
+    let ups = from.components().count() - common;
+    let mut segments: Vec<String> = vec!["..".into(); ups];
+    segments.extend(
+        to.components()
+            .skip(common)
+            .map(|c| percent_encode(c.as_os_str().as_encoded_bytes())),
+    );
+    segments.join("/")
+}
+
+/// A path segment's bytes with everything but `A-Z a-z 0-9 - . _ ~` as `%XX`.
+fn percent_encode(bytes: &[u8]) -> String {
+    let mut s = String::with_capacity(bytes.len());
+    for &b in bytes {
+        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+            s.push(b as char);
+        } else {
+            let _ = write!(s, "%{b:02X}");
+        }
+    }
+    s
 }
 
 /// Outputs of the main job with a fixed explanation (file stem → line).
@@ -197,6 +237,8 @@ const INDEX_FOLDERS: &[&str] = &["results", "studies"];
 pub fn index_command(build: &Path, out: Option<&Path>) -> Result<PathBuf> {
     let page = page_name(out.map_or_else(|| build.join("index.html"), Path::to_path_buf))?;
     let folder = page.parent().unwrap_or(Path::new(""));
+    // Created first: the links are resolved against the page's folder.
+    let outputs = OutputTransaction::new(folder, "index", &[])?;
     let mut s = page_head("obstacle-fem: outputs of the main job");
     for sub in INDEX_FOLDERS {
         let dir = build.join(sub);
@@ -226,7 +268,6 @@ pub fn index_command(build: &Path, out: Option<&Path>) -> Result<PathBuf> {
         s.push_str("</ul>\n");
     }
     s.push_str("</body>\n</html>\n");
-    let outputs = OutputTransaction::new(folder, "index", &[])?;
     write_text_atomically(&outputs.stage(&page)?, &s)?;
     outputs.commit()?;
     Ok(page)
@@ -244,9 +285,15 @@ fn list_files(dir: &Path, files: &mut Vec<PathBuf>) -> Result<()> {
         if entry.file_name().to_string_lossy().starts_with('.') {
             continue;
         }
-        if path.is_dir() {
+        // The entry itself, not what a symlink points to (a link to a folder
+        // could loop); of the rest only regular files (or links to them):
+        // a FIFO or a device would block or stream when read.
+        let kind = entry
+            .file_type()
+            .map_err(|e| Error::output(&path, format!("cannot inspect: {e}")))?;
+        if kind.is_dir() {
             list_files(&path, files)?;
-        } else {
+        } else if path.is_file() {
             files.push(path);
         }
     }
@@ -309,6 +356,10 @@ fn describe(path: &Path, name: &str) -> Option<String> {
 
 /// The title of a study's Markdown table (its first line, `## TITLE`).
 fn study_title(md: &Path) -> Option<String> {
+    // Only a regular file (or a link to one) is read: a FIFO would block.
+    if !md.is_file() {
+        return None;
+    }
     let text = std::fs::read_to_string(md).ok()?;
     let title = text.lines().next()?.trim_start_matches('#').trim();
     (!title.is_empty()).then(|| title.to_string())

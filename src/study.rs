@@ -168,6 +168,19 @@ impl Study {
         out_dir.join(format!("{}-{:03}.h5", self.name, i))
     }
 
+    /// The scene of each of `runs` (this study's, at `study_path`), every
+    /// one loaded and checked: the first bad override is the error.
+    pub fn run_scenes(
+        &self,
+        study_path: &Path,
+        runs: &[Vec<(String, String)>],
+    ) -> Result<Vec<Scene>> {
+        let scene_path = self.scene_path(study_path);
+        runs.iter()
+            .map(|labels| Scene::load(&scene_path, &self.overrides(labels)))
+            .collect()
+    }
+
     /// The override lists of all runs, outer sweeps first.
     pub fn runs(&self) -> Vec<Vec<(String, String)>> {
         let mut runs: Vec<Vec<(String, String)>> = vec![vec![]];
@@ -201,12 +214,14 @@ pub fn run_study(
     jobs: usize,
 ) -> Result<Vec<StudyRow>> {
     let study = Study::load(study_path)?;
-    let scene_path = study.scene_path(study_path);
     let runs = study.runs();
+    // Every run's scene before any run: a bad override in the last run must
+    // not come after the first runs replaced earlier results.
+    let scenes = study.run_scenes(study_path, &runs)?;
     let run = |i: usize| {
         run_one(
             &study,
-            &scene_path,
+            &scenes[i],
             out_dir,
             i,
             &runs[i],
@@ -251,7 +266,7 @@ pub fn run_study(
 /// `<out_dir>/<study>-<i>.h5`. A numerical failure becomes a row.
 fn run_one(
     study: &Study,
-    scene_path: &Path,
+    scene: &Scene,
     out_dir: &Path,
     i: usize,
     labels: &[(String, String)],
@@ -259,13 +274,12 @@ fn run_one(
     jobs: usize,
 ) -> Result<StudyRow> {
     let overrides = study.overrides(labels);
-    let scene = Scene::load(scene_path, &overrides)?;
     let out = study.result_path(out_dir, i);
-    let (summary, failure) = match run_scene(&scene, &out, show_progress && jobs <= 1) {
+    let (summary, failure) = match run_scene(scene, &out, show_progress && jobs <= 1) {
         Ok(summary) => (summary, None),
         Err(e @ Error::Numerical { .. }) => {
             eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
-            (failed_summary(&scene), Some(e.to_string()))
+            (failed_summary(scene), Some(e.to_string()))
         }
         Err(e) => return Err(e),
     };
@@ -310,23 +324,19 @@ pub fn failure_marker_path(result: &Path) -> PathBuf {
 /// neither file is an error naming the result file.
 pub fn rows_from_results(study_path: &Path, out_dir: &Path) -> Result<Vec<StudyRow>> {
     let study = Study::load(study_path)?;
-    let scene_path = study.scene_path(study_path);
+    let runs = study.runs();
+    let scenes = study.run_scenes(study_path, &runs)?;
     let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    study
-        .runs()
-        .into_iter()
+    runs.into_iter()
+        .zip(scenes)
         .enumerate()
-        .map(|(i, labels)| {
-            let scene = Scene::load(&scene_path, &study.overrides(&labels))?;
+        .map(|(i, (labels, scene))| {
             let out = study.result_path(out_dir, i);
             let marker = failure_marker_path(&out);
             let (result, failed) = (modified(&out), modified(&marker));
             let (summary, failure) = match (result, failed) {
                 (_, Some(failed)) if result.is_none_or(|r| failed >= r) => {
-                    let text = std::fs::read_to_string(&marker).map_err(|e| {
-                        Error::output(&marker, format!("cannot read the failure marker: {e}"))
-                    })?;
-                    let text = text.strip_suffix('\n').unwrap_or(&text).to_string();
+                    let text = crate::output::marker::read_marker(&marker)?;
                     (failed_summary(&scene), Some(text))
                 }
                 (Some(_), _) => (RunSummary::from_result(&out, &scene)?, None),
@@ -870,6 +880,12 @@ pub fn write_convergence_plots(
     Ok(files)
 }
 
+/// Snakemake expands wildcards (`{name}`) in a rule's string params, and
+/// `{{` does not escape them there: an out dir, scene path or override
+/// holding a brace would be a WildcardError. A param given as a function is
+/// taken as it is.
+const PARAM: &str = "lambda wildcards: ";
+
 /// Writes `<out_dir>/Snakefile`: the study as a Snakemake workflow. One rule
 /// per run runs `obstacle solve` on the run's scene with the study's
 /// overrides into the result file the in-process study writes
@@ -890,9 +906,7 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
     }
     let scene_path = study.scene_path(study_path);
     let runs = study.runs();
-    for labels in &runs {
-        Scene::load(&scene_path, &study.overrides(labels))?;
-    }
+    study.run_scenes(study_path, &runs)?;
     let outputs = OutputTransaction::new(
         out_dir,
         "Snakefile",
@@ -938,8 +952,9 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
          rule table:\n    input: {logs}\n    output: {tables}\n    shell:\n        \
          \"{{OBSTACLE:q}} study {{STUDY:q}} --out-dir {{OUT_DIR:q}} --from-results --quiet\"",
         name = study.name,
-        study = study_abs.display(),
-        dir = dir_abs.display(),
+        // In a comment line: a newline in a path must not end it.
+        study = study_abs.display().to_string().escape_debug(),
+        dir = dir_abs.display().to_string().escape_debug(),
         exe = path_str(obstacle),
         study_py = path_str(&study_abs),
         scene_py = path_str(&scene_abs),
@@ -958,7 +973,7 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
         let _ = writeln!(
             s,
             "\nrule run_{i:03}:\n    output: {log}\n    params:\n        \
-             out={out},\n        failed={failed},\n        sets=[{sets}],\n    shell:\n        \
+             out={PARAM}{out},\n        failed={PARAM}{failed},\n        sets={PARAM}[{sets}],\n    shell:\n        \
              \"(cd {{SCENE_DIR:q}} && {{OBSTACLE:q}} solve {{SCENE:q}} --quiet --out {{params.out:q}} \
              --failure-marker {{params.failed:q}} {{params.sets:q}}) > {{output:q}}\"",
             log = logs[i],

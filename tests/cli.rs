@@ -161,3 +161,105 @@ fn bad_input_is_one_clear_error_and_writes_nothing() {
     );
     assert!(!Path::new(&foreign).with_extension("xdmf").exists());
 }
+
+/// A reader that is gone before anything is printed (`obstacle info FILE |
+/// head -0`): the command ends quietly with 141 (128 + SIGPIPE), no panic,
+/// nothing on stderr. Also `compare` (a table) and `solve` (its line after
+/// the result is in place, which stays).
+#[test]
+fn a_closed_output_pipe_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r.h5");
+    let o = common::solve_membrane(&out, &["mesh.n=4", "output.plots=[]"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let r = out.to_str().unwrap();
+    let again = dir.path().join("again.h5");
+    let commands: [&[&str]; 3] = [
+        &["info", r],
+        &["compare", r, r],
+        &[
+            "solve",
+            SCENE,
+            "--quiet",
+            "--set",
+            "mesh.n=4",
+            "--set",
+            "output.plots=[]",
+            "--out",
+            again.to_str().unwrap(),
+        ],
+    ];
+    for args in commands {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_obstacle"))
+            .args(args)
+            .env("CI", "1")
+            .stdout(writer)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(141), "{args:?}: {stderr}");
+        assert!(stderr.is_empty(), "{args:?}: {stderr}");
+    }
+    assert!(again.is_file(), "the solve's result is in place");
+}
+
+/// The exit status of `solve` says how the run ended: 0 converged or
+/// stopped by the scene's rule (`stop = "thesis"` met, KKT above tol), 2
+/// stopped by `solver.max_iter` (result written, `converged = false`), 0
+/// again for that run with `--failure-marker` (a workflow's outcome), 1 for
+/// an error, a usage error included (clap's own status would be 2).
+#[test]
+fn the_exit_status_says_how_the_run_ended() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r.h5");
+    let o_str = out.to_str().unwrap();
+    let marker = dir.path().join("r.failed");
+    let base = ["mesh.n=4", "output.plots=[]", "solver.method=uzawa"];
+    let solve = |sets: &[&str], extra: &[&str]| {
+        let mut args = vec!["solve", SCENE, "--quiet", "--out", o_str];
+        for s in base.iter().chain(sets) {
+            args.extend(["--set", s]);
+        }
+        args.extend(extra);
+        run_obstacle(&args)
+    };
+    let attrs = || {
+        let r = obstacle_fem::output::read_result(&out).unwrap();
+        (
+            common::solver_attr(&r, "converged").to_string(),
+            common::solver_attr(&r, "stop_reason").to_string(),
+        )
+    };
+    let o = solve(&["solver.stop=kkt"], &[]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert_eq!(attrs(), ("true".into(), "\"kkt\"".into()));
+
+    let o = solve(&["solver.stop=kkt", "solver.max_iter=5"], &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("warning: not converged"), "{}", text(&o));
+    assert_eq!(attrs(), ("false".into(), "\"max_iter\"".into()));
+
+    let o = solve(
+        &["solver.stop=kkt", "solver.max_iter=5"],
+        &["--failure-marker", marker.to_str().unwrap()],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(!marker.exists());
+
+    let o = solve(
+        &[
+            "solver.stop=thesis",
+            "solver.thesis_tol=1e-2",
+            "solver.tol=1e-12",
+        ],
+        &[],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert_eq!(attrs(), ("false".into(), "\"thesis\"".into()));
+
+    let o = run_obstacle(&["freefem", SCENE, "--iterations", "0"]);
+    common::assert_one_error(&o, &["--iterations", "0"], "--iterations 0");
+    assert_eq!(o.status.code(), Some(1));
+}

@@ -34,7 +34,7 @@ fn solve(dir: &Path, name: &str, scene_name: &str, extra: &[String]) -> PathBuf 
     let mut args = vec!["solve".into(), scene_arg(scene_name)];
     args.extend_from_slice(extra);
     args.extend(["--quiet".into(), "--out".into(), out.display().to_string()]);
-    obstacle(&args);
+    common::obstacle_solve(&args);
     out
 }
 

@@ -79,7 +79,7 @@ fn compare(dir: &Path, msh: &Path, mesh: &Mesh, case: &Case) {
 
     // Rust: exactly ITERATIONS iterations (the thesis criterion never fires).
     let h5 = dir.join(format!("{name}.h5"));
-    obstacle(&[
+    common::obstacle_solve(&[
         "solve".into(),
         scene().display().to_string(),
         "--set".into(),

@@ -51,7 +51,7 @@ fn both(dir: &Path, name: &str, scene: &str, extra: &[String]) -> (PathBuf, Path
     args.extend_from_slice(extra);
     args.extend(["--quiet".into(), "--out".into(), rust.display().to_string()]);
     let t = Instant::now();
-    obstacle(&args);
+    common::obstacle_solve(&args);
     let rust_seconds = t.elapsed().as_secs_f64();
     let mut args = vec!["freefem".into(), scene.to_string()];
     args.extend_from_slice(extra);

@@ -354,3 +354,83 @@ fn an_interrupted_run_leaves_nothing_behind() {
         assert!(!out.exists(), "{signal}");
     }
 }
+
+/// `solve --failure-marker X` only ever writes or removes a marker: X is
+/// refused before the run when it is the scene, the result, a file named
+/// after the result, or an existing file that is no marker (an unrelated
+/// text, an earlier result), and those stay as they were. A marker is
+/// written on a numerical failure (exit 0), replaced by the next failure and
+/// removed by the next success.
+#[test]
+fn a_failure_marker_never_replaces_or_removes_another_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("disk.toml");
+    let text_of_scene = std::fs::read_to_string("pipelines/scenes/obstacle-disk.toml")
+        .unwrap()
+        .replace(
+            "../../meshes/",
+            &format!("{}/meshes/", env!("CARGO_MANIFEST_DIR")),
+        );
+    std::fs::write(&scene, &text_of_scene).unwrap();
+    let out = dir.path().join("r.h5");
+    let solve = |marker: &Path, diverge: bool| {
+        let mut args = vec![
+            "solve",
+            scene.to_str().unwrap(),
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+            "--failure-marker",
+            marker.to_str().unwrap(),
+        ];
+        for s in ["mesh.n=4", "output.plots=[]", "solver.stop=kkt"] {
+            args.extend(["--set", s]);
+        }
+        if diverge {
+            args.extend(["--set", "solver.alpha=100"]);
+        }
+        run_obstacle(&args)
+    };
+    let notes = dir.path().join("notes.txt");
+    std::fs::write(&notes, "keep me\n").unwrap();
+    let refused: [(&Path, &str); 4] = [
+        (&scene, "an input of this run"),
+        (&out, "it is the result file"),
+        (&out.with_extension("xdmf"), "named r.*"),
+        (&notes, "not an obstacle failure marker"),
+    ];
+    for (marker, reason) in refused {
+        for diverge in [false, true] {
+            let o = solve(marker, diverge);
+            common::assert_one_error(&o, &["--failure-marker", reason], reason);
+        }
+        assert!(!out.exists(), "{reason}: the run went ahead");
+    }
+    assert_eq!(std::fs::read_to_string(&scene).unwrap(), text_of_scene);
+    assert_eq!(std::fs::read_to_string(&notes).unwrap(), "keep me\n");
+
+    // An earlier result named as the marker: neither replaced nor removed.
+    let earlier = dir.path().join("earlier.h5");
+    let marker = dir.path().join("r.failed");
+    common::check_success("a first run", &solve(&marker, false));
+    std::fs::rename(&out, &earlier).unwrap();
+    let bytes = std::fs::read(&earlier).unwrap();
+    for diverge in [false, true] {
+        let o = solve(&earlier, diverge);
+        common::assert_one_error(&o, &["earlier.h5", "not an obstacle failure marker"], "h5");
+    }
+    assert_eq!(std::fs::read(&earlier).unwrap(), bytes);
+
+    // Its own marker: written, replaced, removed.
+    for _ in 0..2 {
+        let o = solve(&marker, true);
+        assert_eq!(o.status.code(), Some(0), "{}", common::text(&o));
+        let text = std::fs::read_to_string(&marker).unwrap();
+        assert!(
+            text.starts_with(obstacle_fem::output::marker::HEADER) && text.contains("diverged"),
+            "{text}"
+        );
+    }
+    common::check_success("a run after a failure", &solve(&marker, false));
+    assert!(!marker.exists() && out.exists());
+}

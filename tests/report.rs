@@ -212,3 +212,87 @@ fn report_refuses_a_missing_result_and_a_page_not_ending_in_html() {
     assert!(!o.status.success());
     assert!(read_result(&result).is_ok(), "the result file was replaced");
 }
+
+/// A result whose name holds `#`, `?`, `%` and a space, its page in another
+/// folder given relative to the working folder: every plot link is relative
+/// to the page and percent-encoded, and Chromium loads all four plots.
+#[test]
+fn report_links_are_relative_to_the_page_and_percent_encoded() {
+    let dir = tempfile::tempdir().unwrap();
+    let results = dir.path().join("res");
+    std::fs::create_dir(&results).unwrap();
+    let result = results.join("d#1?%x y.h5");
+    check_success(
+        "solve",
+        &solve_scene("obstacle-disk", &result, &["mesh.h=0.4"]),
+    );
+    // Result and page given relative to the working folder, which is not
+    // the page's: only a link relative to the page finds the plots.
+    let o = Command::new(env!("CARGO_BIN_EXE_obstacle"))
+        .args(["report", "../res/d#1?%x y.h5", "--out", "p.html"])
+        .current_dir(dir.path().join("res"))
+        .output()
+        .unwrap();
+    check_success("report in res/ onto res/p.html", &o);
+    let o = Command::new(env!("CARGO_BIN_EXE_obstacle"))
+        .args(["report", "res/d#1?%x y.h5", "--out", "pages/p.html"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    check_success("report onto pages/p.html", &o);
+    let page = dir.path().join("pages").join("p.html");
+    let html = std::fs::read_to_string(&page).unwrap();
+    for plot in ["u", "lambda", "contact", "history"] {
+        let src = format!("<img src=\"../res/d%231%3F%25x%20y.{plot}.png\"");
+        assert!(html.contains(&src), "no {src} in the page:\n{html}");
+    }
+    let profile = tempfile::tempdir().unwrap();
+    assert_eq!(
+        images_loaded_in_chromium(&page, profile.path()),
+        "loaded 4 of 4"
+    );
+    let beside = std::fs::read_to_string(results.join("p.html")).unwrap();
+    assert!(beside.contains("<img src=\"d%231%3F%25x%20y.u.png\""));
+}
+
+/// `obstacle index` over a build folder holding FIFOs (one where a study's
+/// title is read, one named like a result) lists the regular files, skips
+/// the FIFOs and never opens one: it ends, well within 60 s.
+#[test]
+fn index_skips_fifos_and_never_blocks() {
+    use wait_timeout::ChildExt as _;
+    let build = tempfile::tempdir().unwrap();
+    let studies = build.path().join("studies");
+    std::fs::create_dir_all(&studies).unwrap();
+    std::fs::write(studies.join("piped-000.h5"), "").unwrap();
+    for fifo in ["piped.md", "fifo.h5"] {
+        let o = Command::new("mkfifo")
+            .arg(studies.join(fifo))
+            .output()
+            .unwrap();
+        check_success("mkfifo", &o);
+    }
+    let mut child = Command::new(env!("CARGO_BIN_EXE_obstacle"))
+        .args(["index", build.path().to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let Some(status) = child
+        .wait_timeout(std::time::Duration::from_secs(60))
+        .unwrap()
+    else {
+        child.kill().unwrap();
+        child.wait().unwrap();
+        panic!("obstacle index blocked on a FIFO");
+    };
+    assert!(status.success());
+    let html = std::fs::read_to_string(build.path().join("index.html")).unwrap();
+    assert!(
+        html.contains("<li><a href=\"studies/piped-000.h5\">piped-000.h5</a>: result</li>"),
+        "{html}"
+    );
+    assert!(
+        !html.contains("fifo.h5") && !html.contains("piped.md"),
+        "{html}"
+    );
+}

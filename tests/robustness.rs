@@ -289,3 +289,63 @@ fn extreme_values_name_the_scene_key_or_the_mesh() {
     assert_error(&o, &["no-such-folder", "no such folder"], "hard");
     assert!(text(&o).lines().count() <= 2, "{}", text(&o));
 }
+
+/// Writes `bytes`, which need not be UTF-8, as the string attribute `name`
+/// of `loc`: fixed-length ASCII (what h5py makes of `np.bytes_`) or
+/// variable-length UTF-8, replacing an attribute of that name.
+fn write_raw_string_attr(loc: &hdf5::Location, name: &str, bytes: &[u8], fixed: bool) {
+    use hdf5::types::{FixedAscii, VarLenUnicode};
+    if loc.attr(name).is_ok() {
+        loc.delete_attr(name).unwrap();
+    }
+    if fixed {
+        // SAFETY: the value is only written out; nothing reads it as text.
+        let v = unsafe { FixedAscii::<16>::from_ascii_unchecked(bytes) };
+        let a = loc.new_attr::<FixedAscii<16>>().create(name).unwrap();
+        a.write_scalar(&v).unwrap();
+    } else {
+        // SAFETY: as above.
+        let v = unsafe { VarLenUnicode::from_str_unchecked(std::str::from_utf8_unchecked(bytes)) };
+        let a = loc.new_attr::<VarLenUnicode>().create(name).unwrap();
+        a.write_scalar(&v).unwrap();
+    }
+}
+
+#[test]
+fn string_attributes_that_are_not_utf8_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = small_result(dir.path(), "good.h5");
+    let cases: &[(&str, &str, &str, &[u8], bool)] = &[
+        ("scene-fixed.h5", "/", "scene", b"\xff", true),
+        (
+            "scene-varlen.h5",
+            "/",
+            "scene",
+            b"name = \"\xc3\x28\"",
+            false,
+        ),
+        ("algorithm.h5", "solver", "algorithm", b"uzawa\xff", true),
+        ("location.h5", "fields/u", "location", b"vert\xe9x", false),
+    ];
+    for (name, object, attr, bytes, fixed) in cases {
+        let path = dir.path().join(name);
+        std::fs::copy(&good, &path).unwrap();
+        {
+            let f = hdf5::File::open_rw(&path).unwrap();
+            if *object == "/" {
+                write_raw_string_attr(&f, attr, bytes, *fixed);
+            } else if let Ok(g) = f.group(object) {
+                write_raw_string_attr(&g, attr, bytes, *fixed);
+            } else {
+                write_raw_string_attr(&f.dataset(object).unwrap(), attr, bytes, *fixed);
+            }
+        }
+        let expected = [*name, &format!("attribute `{attr}`"), "not valid UTF-8"];
+        let o = run_obstacle(&["info", s(&path)]);
+        assert_error(&o, &expected, &format!("info {name}"));
+        let page = dir.path().join(format!("{name}.html"));
+        let o = run_obstacle(&["report", s(&path), "--out", s(&page)]);
+        assert_error(&o, &expected, &format!("report {name}"));
+        assert!(!page.exists(), "{name}: a page was written");
+    }
+}

@@ -77,6 +77,29 @@ fn an_error_in_one_run_stops_a_parallel_study() {
     assert!(!out_dir.join("jobs.csv").exists());
 }
 
+/// A study whose third run has a bad override (mesh.n = 0) fails before
+/// any run, serial or parallel: the results of an earlier study in the same
+/// folder stay as they were, byte for byte.
+#[test]
+fn a_bad_run_is_refused_before_any_result_is_replaced() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("out");
+    let good = small_study(dir.path(), "4, 8");
+    check_success("the first study", &run_study(&good, &out_dir, "1"));
+    let results: Vec<Vec<u8>> = (0..4)
+        .map(|i| std::fs::read(out_dir.join(format!("jobs-{i:03}.h5"))).unwrap())
+        .collect();
+    let bad = small_study(dir.path(), "4, 8, 0");
+    for jobs in ["1", "2"] {
+        let o = run_study(&bad, &out_dir, jobs);
+        assert_one_error(&o, &["obstacle-disk.toml", "mesh.n"], "mesh.n = 0");
+        for (i, before) in results.iter().enumerate() {
+            let now = std::fs::read(out_dir.join(format!("jobs-{i:03}.h5"))).unwrap();
+            assert!(now == *before, "--jobs {jobs}: jobs-{i:03}.h5 was replaced");
+        }
+    }
+}
+
 /// `--jobs 0` is refused by the command line.
 #[test]
 fn zero_jobs_are_refused() {

@@ -94,7 +94,11 @@ fn a_failed_run_leaves_a_marker_and_a_failed_row() {
     check_success("study", &run_study(&study, &serial, &[]));
     let flow = dir.path().join("flow");
     run_workflow(&study, &flow);
-    let marker = std::fs::read_to_string(flow.join("flow-001.failed")).unwrap();
+    let marker_file = flow.join("flow-001.failed");
+    let marker = obstacle_fem::output::marker::read_marker(&marker_file).unwrap();
+    assert!(std::fs::read_to_string(&marker_file)
+        .unwrap()
+        .starts_with(obstacle_fem::output::marker::HEADER));
     assert!(!flow.join("flow-001.h5").exists());
     assert!(!flow.join("flow-000.failed").exists());
     let (md, csv) = common::study_tables(&flow, "flow");
@@ -181,4 +185,21 @@ fn a_stale_result_is_refused() {
         "from-results on a stale result",
     );
     assert!(!out.join("flow.md").exists());
+}
+
+/// An out dir whose name holds Snakemake's wildcard braces runs as any
+/// other: the Snakefile's params are taken literally, not as patterns.
+#[test]
+fn braces_in_the_out_dir_are_no_wildcards() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = disk_study(
+        dir.path(),
+        ", \"mesh.n=4\"",
+        "[[sweep]]\nkey = \"solver.tol\"\nvalues = [1e-6]\n",
+    );
+    let flow = dir.path().join("out{x}}{");
+    run_workflow(&study, &flow);
+    assert!(flow.join("flow-000.h5").is_file());
+    let (md, _) = common::study_tables(&flow, "flow");
+    assert_eq!(md.matches("| 0.000001 | ").count(), 1, "{md}");
 }

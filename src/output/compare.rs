@@ -394,12 +394,12 @@ pub fn command(
     match row {
         Some(label) => {
             for r in &rows {
-                println!("| {label} | {} | {:.2e} | {rtol:.0e} |", r.name, r.worst());
+                crate::outln!("| {label} | {} | {:.2e} | {rtol:.0e} |", r.name, r.worst());
             }
         }
         None => {
-            println!("A = {}\nB = {}\n", a.display(), b.display());
-            print!("{}", table(&rows, rtol));
+            crate::outln!("A = {}\nB = {}\n", a.display(), b.display());
+            crate::out!("{}", table(&rows, rtol));
         }
     }
     let bad: Vec<String> = rows

@@ -741,21 +741,39 @@ fn read_attr(attr: &Attribute, what: &str) -> Res<Option<AttrValue>> {
         }
         TypeDescriptor::Boolean => first(reader.read_raw::<bool>().ctx(ctx)?).map(AttrValue::Bool),
         TypeDescriptor::VarLenUnicode => first(reader.read_raw::<VarLenUnicode>().ctx(ctx)?)
-            .map(|s| AttrValue::Str(s.to_string())),
-        TypeDescriptor::VarLenAscii => {
-            first(reader.read_raw::<VarLenAscii>().ctx(ctx)?).map(|s| AttrValue::Str(s.to_string()))
-        }
+            .map(|s| utf8_attr(s.as_bytes(), what))
+            .transpose()?,
+        TypeDescriptor::VarLenAscii => first(reader.read_raw::<VarLenAscii>().ctx(ctx)?)
+            .map(|s| utf8_attr(s.as_bytes(), what))
+            .transpose()?,
         TypeDescriptor::FixedAscii(n) if n <= 4096 => {
             first(reader.read_raw::<FixedAscii<4096>>().ctx(ctx)?)
-                .map(|s| AttrValue::Str(s.as_str().to_string()))
+                .map(|s| utf8_attr(s.as_bytes(), what))
+                .transpose()?
         }
         TypeDescriptor::FixedUnicode(n) if n <= 4096 => {
             first(reader.read_raw::<FixedUnicode<4096>>().ctx(ctx)?)
-                .map(|s| AttrValue::Str(s.as_str().to_string()))
+                .map(|s| utf8_attr(s.as_bytes(), what))
+                .transpose()?
         }
         _ => None,
     };
     Ok(value)
+}
+
+/// A string attribute's bytes as text. The hdf5 crate's `as_str` trusts the
+/// file's bytes to be UTF-8 (its declared character set is only a label), and
+/// a result file is untrusted input: the bytes are checked here.
+fn utf8_attr(bytes: &[u8], what: &str) -> Res<AttrValue> {
+    match std::str::from_utf8(bytes) {
+        Ok(s) => Ok(AttrValue::Str(s.to_string())),
+        Err(e) => Err(format!(
+            "{what} is not valid UTF-8 (byte {} of {}: {:#04x})",
+            e.valid_up_to(),
+            bytes.len(),
+            bytes[e.valid_up_to()]
+        )),
+    }
 }
 
 /// All readable attributes of an object, in creation order, except `skip`.

@@ -6,6 +6,7 @@
 pub mod blocks;
 pub mod compare;
 pub mod hdf5_io;
+pub mod marker;
 pub mod transaction;
 pub mod xdmf;
 

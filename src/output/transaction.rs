@@ -67,14 +67,21 @@ fn install_signal_cleanup() {
         };
         std::thread::spawn(move || {
             if let Some(signal) = signals.forever().next() {
-                let pending = PENDING.lock().unwrap_or_else(|e| e.into_inner());
-                for path in pending.iter() {
-                    remove_all(path);
-                }
-                std::process::exit(128 + signal);
+                exit_after_cleanup(128 + signal);
             }
         });
     });
+}
+
+/// Ends the process with `status` after removing every registered temporary
+/// (staging folders, gmsh/FreeFEM files): the end of a run interrupted by a
+/// signal or by a closed output pipe (`console`).
+pub fn exit_after_cleanup(status: i32) -> ! {
+    let pending = PENDING.lock().unwrap_or_else(|e| e.into_inner());
+    for path in pending.iter() {
+        remove_all(path);
+    }
+    std::process::exit(status)
 }
 
 /// Removes the staging folders in `folder` left by runs that died without
@@ -125,6 +132,9 @@ pub struct OutputTransaction {
     staging: PathBuf,
     /// Canonical paths of the run's inputs, never replaced.
     inputs: Vec<PathBuf>,
+    /// File names staged as failure markers ([`OutputTransaction::stage_marker`]):
+    /// their kind is their content's, whatever their extension.
+    markers: Mutex<Vec<std::ffi::OsString>>,
     _cleanup: RemoveOnSignal,
     committed: bool,
 }
@@ -163,6 +173,7 @@ impl OutputTransaction {
                 .iter()
                 .filter_map(|p| p.canonicalize().ok())
                 .collect(),
+            markers: Mutex::new(Vec::new()),
             _cleanup: cleanup,
             committed: false,
         })
@@ -183,6 +194,18 @@ impl OutputTransaction {
             self.stage(&super::domain_xdmf_path(out))?;
         }
         Ok(staged)
+    }
+
+    /// Stages a failure marker (`solve --failure-marker`, any extension):
+    /// an existing file at `target` is replaced only if it is a marker.
+    pub fn stage_marker(&self, target: &Path) -> Result<PathBuf> {
+        if let Some(name) = target.file_name() {
+            self.markers
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push(name.to_os_string());
+        }
+        self.stage(target)
     }
 
     /// The path at which to write the file that becomes `target` on commit.
@@ -265,45 +288,86 @@ impl OutputTransaction {
     }
 
     /// Refuses to replace an input of the run, a directory, a special file,
-    /// or a file whose content is not what its extension says.
+    /// or a file whose content is not what its extension (a marker: its
+    /// staging as one) says.
     fn check_target(&self, target: &Path) -> Result<()> {
-        let refuse = |reason: String| Error::output(target, format!("{reason}; not replacing it"));
-        let meta = match std::fs::metadata(target) {
-            Ok(m) => m,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-            Err(e) => return Err(refuse(format!("cannot inspect the existing path: {e}"))),
+        let is_marker = target.file_name().is_some_and(|name| {
+            self.markers
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .iter()
+                .any(|m| m == name)
+        });
+        let kind = if is_marker {
+            Some(OutputKind::Marker)
+        } else {
+            OutputKind::of(&extension(target))
         };
-        if meta.is_dir() {
-            return Err(refuse("the output path is a directory".into()));
-        }
-        if !meta.is_file() {
-            return Err(refuse("the output path is not a regular file".into()));
-        }
-        if let Ok(canonical) = target.canonicalize() {
-            if self.inputs.contains(&canonical) {
-                return Err(refuse("the output path is an input of this run".into()));
-            }
-        }
-        let ext = target
-            .extension()
-            .and_then(|e| e.to_str())
-            .unwrap_or("")
-            .to_ascii_lowercase();
-        let Some(kind) = OutputKind::of(&ext) else {
-            return Err(refuse(format!(
-                "an existing file with an extension obstacle never writes (`.{ext}`)"
-            )));
-        };
-        let head =
-            read_head(target).map_err(|e| refuse(format!("cannot read the existing file: {e}")))?;
-        if !head.is_empty() && !kind.matches(&head) {
-            return Err(refuse(format!(
-                "the existing file is not {} file",
-                kind.description()
-            )));
-        }
-        Ok(())
+        check_replaceable(target, kind, &self.inputs)
     }
+}
+
+/// Whether obstacle writes files with this extension (lower case, no dot).
+pub(crate) fn is_output_extension(ext: &str) -> bool {
+    OutputKind::of(ext).is_some()
+}
+
+/// Checks that a failure marker may be written or removed at `target`:
+/// nothing there, or a marker (it begins with [`super::marker::HEADER`]),
+/// and not one of `inputs`.
+pub(crate) fn check_marker_target(target: &Path, inputs: &[PathBuf]) -> Result<()> {
+    let inputs: Vec<PathBuf> = inputs
+        .iter()
+        .filter_map(|p| p.canonicalize().ok())
+        .collect();
+    check_replaceable(target, Some(OutputKind::Marker), &inputs)
+}
+
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+/// Whether an existing `target` may be replaced by an output of `kind`
+/// (None: an extension obstacle never writes); `inputs` are canonical.
+fn check_replaceable(target: &Path, kind: Option<OutputKind>, inputs: &[PathBuf]) -> Result<()> {
+    let refuse = |reason: String| Error::output(target, format!("{reason}; not replacing it"));
+    let meta = match std::fs::metadata(target) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(refuse(format!("cannot inspect the existing path: {e}"))),
+    };
+    if meta.is_dir() {
+        return Err(refuse("the output path is a directory".into()));
+    }
+    if !meta.is_file() {
+        return Err(refuse("the output path is not a regular file".into()));
+    }
+    if let Ok(canonical) = target.canonicalize() {
+        if inputs.contains(&canonical) {
+            return Err(refuse("the output path is an input of this run".into()));
+        }
+    }
+    let Some(kind) = kind else {
+        return Err(refuse(format!(
+            "an existing file with an extension obstacle never writes (`.{}`)",
+            extension(target)
+        )));
+    };
+    let head =
+        read_head(target).map_err(|e| refuse(format!("cannot read the existing file: {e}")))?;
+    // An empty file is a write that never happened, but for a marker,
+    // which is recognised by its content alone.
+    let empty_ok = head.is_empty() && !matches!(kind, OutputKind::Marker);
+    if !empty_ok && !kind.matches(&head) {
+        return Err(refuse(format!(
+            "the existing file is not {} file",
+            kind.description()
+        )));
+    }
+    Ok(())
 }
 
 impl Drop for OutputTransaction {
@@ -322,6 +386,8 @@ enum OutputKind {
     Xml,
     Png,
     Text,
+    /// `solve --failure-marker`: by content, never by extension.
+    Marker,
 }
 
 impl OutputKind {
@@ -344,6 +410,7 @@ impl OutputKind {
             OutputKind::Xml => text().starts_with('<'),
             OutputKind::Png => head.starts_with(b"\x89PNG\r\n\x1a\n"),
             OutputKind::Text => !head.contains(&0),
+            OutputKind::Marker => head.starts_with(super::marker::HEADER.as_bytes()),
         }
     }
 
@@ -354,6 +421,7 @@ impl OutputKind {
             OutputKind::Xml => "an XML/HTML",
             OutputKind::Png => "a PNG",
             OutputKind::Text => "a text",
+            OutputKind::Marker => "an obstacle failure marker",
         }
     }
 }

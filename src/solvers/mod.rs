@@ -249,6 +249,10 @@ impl SolveReport {
 /// The stop reason of the one direct solve of a problem without contact.
 const LINEAR: &str = "linear";
 
+/// The stop reason of an iteration that ran `max_iter` times without
+/// meeting its stop rule.
+pub const STOP_MAX_ITER: &str = "max_iter";
+
 /// The bookkeeping every method shares from its start to its
 /// [`SolveReport`] (the one place a report is built): the clock, the
 /// per-iteration history and progress display, the last measures and why
@@ -287,7 +291,7 @@ impl ReportBuilder {
             tol: f64::INFINITY,
             progress: IterationProgress::new(algorithm, 1, 0.0, false),
             history: History::default(),
-            stop_reason: "max_iter",
+            stop_reason: STOP_MAX_ITER,
             iterations: 0,
             measures: KktMeasures::default(),
             factor_seconds,

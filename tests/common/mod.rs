@@ -66,6 +66,34 @@ pub fn obstacle(args: &[String]) -> Output {
     out
 }
 
+/// Runs `obstacle solve ARGS` (with `--out FILE`) and checks its exit
+/// status against the result it wrote: 0 when the run converged or met the
+/// scene's stop rule, 2 when `solver.max_iter` stopped it first (the result
+/// says `stop_reason = "max_iter"`, not converged: exactly K iterations with
+/// a thesis tolerance never met).
+pub fn obstacle_solve(args: &[String]) -> Output {
+    let out = obstacle_output(args);
+    let what = format!("obstacle {}", args.join(" "));
+    let code = out.status.code();
+    if code != Some(2) {
+        check_success(&what, &out);
+    }
+    let file = args
+        .iter()
+        .position(|a| a == "--out")
+        .map(|i| PathBuf::from(&args[i + 1]))
+        .expect("obstacle_solve needs --out");
+    let r = obstacle_fem::output::read_result(&file).unwrap_or_else(|e| panic!("{what}: {e}"));
+    let stopped_by_max_iter = solver_attr(&r, "stop_reason") == &AttrValue::Str("max_iter".into())
+        && solver_attr(&r, "converged") == &AttrValue::Bool(false);
+    assert_eq!(
+        code,
+        Some(if stopped_by_max_iter { 2 } else { 0 }),
+        "{what}: exit status against the result's stop"
+    );
+    out
+}
+
 pub fn read_numbers(path: &Path) -> Vec<f64> {
     freefem::read_numbers(path).unwrap_or_else(|e| panic!("{e}"))
 }
