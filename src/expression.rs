@@ -945,30 +945,31 @@ impl Parser<'_> {
 
     /// sum = product { ("+" | "-") product }
     fn sum(&mut self) -> ParseResult<u32> {
-        let mut left = self.product()?;
-        loop {
-            let op = match self.peek() {
-                Some(Token::Op("+")) => Binary::Add,
-                Some(Token::Op("-")) => Binary::Sub,
-                _ => return Ok(left),
-            };
-            self.next += 1;
-            let right = self.product()?;
-            left = self.add(Node::Binary(op, left, right))?;
-        }
+        self.left_associative([("+", Binary::Add), ("-", Binary::Sub)], Self::product)
     }
 
     /// product = signed { ("*" | "/") signed }
     fn product(&mut self) -> ParseResult<u32> {
-        let mut left = self.signed()?;
+        self.left_associative([("*", Binary::Mul), ("/", Binary::Div)], Self::signed)
+    }
+
+    /// operand { op operand } for the two operators `ops`, grouped to the left
+    /// by a loop (a long sum is no recursion).
+    fn left_associative(
+        &mut self,
+        ops: [(&str, Binary); 2],
+        operand: fn(&mut Self) -> ParseResult<u32>,
+    ) -> ParseResult<u32> {
+        let mut left = operand(self)?;
         loop {
-            let op = match self.peek() {
-                Some(Token::Op("*")) => Binary::Mul,
-                Some(Token::Op("/")) => Binary::Div,
-                _ => return Ok(left),
+            let Some(Token::Op(symbol)) = self.peek() else {
+                return Ok(left);
+            };
+            let Some(&(_, op)) = ops.iter().find(|(s, _)| s == symbol) else {
+                return Ok(left);
             };
             self.next += 1;
-            let right = self.signed()?;
+            let right = operand(self)?;
             left = self.add(Node::Binary(op, left, right))?;
         }
     }

@@ -143,17 +143,22 @@ pub struct PointLoadSpec {
     pub force: [f64; 3],
 }
 
-/// A constant traction N and moment M on one named boundary part γ1:
+/// A traction N and a moment M per unit length on one named boundary part
+/// γ1, each component a number or an expression in x, y:
 /// L(V) ∋ ∫_γ1 (N·v + M·s) ℓ dσ, ℓ = |a_α ς^α| the length element of the chart.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EdgeLoadSpec {
     /// Physical name of the boundary part (must not be clamped).
     pub part: String,
-    #[serde(default)]
-    pub traction: [f64; 3],
-    #[serde(default)]
-    pub moment: [f64; 3],
+    #[serde(default = "zero_vector")]
+    pub traction: [Expression; 3],
+    #[serde(default = "zero_vector")]
+    pub moment: [Expression; 3],
+}
+
+fn zero_vector() -> [Expression; 3] {
+    std::array::from_fn(|_| Expression::constant(0.0))
 }
 
 /// The midsurface chart φ: ω → R³, as declared in a scene (`kind = "..."`);
@@ -392,6 +397,20 @@ pub struct ShellSpec {
     /// Conditions per boundary part and component; parts named nowhere are free.
     #[serde(default)]
     pub boundary: Vec<BoundarySpec>,
+    /// Fields fixed at single mesh vertices (`[[shell.support]]`): e.g. the
+    /// one vertical support that removes the rigid translation a model with
+    /// symmetry planes leaves free (the pinched hemisphere).
+    #[serde(default)]
+    pub support: Vec<PointSupportSpec>,
+}
+
+/// `[[shell.support]]`: the fields `fix` (as in `condition = "fixed"`) are 0
+/// at the mesh vertex `at`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointSupportSpec {
+    pub at: [f64; 2],
+    pub fix: Vec<String>,
 }
 
 /// The condition on one boundary part (`[[shell.boundary]]`).
@@ -1362,7 +1381,9 @@ impl Scene {
             for (e, edge) in load.edge.iter().enumerate() {
                 for (i, v) in edge.traction.iter().chain(&edge.moment).enumerate() {
                     let name = if i < 3 { "traction" } else { "moment" };
-                    self.check_finite(&format!("load.edge[{e}].{name}[{}]", i % 3), *v)?;
+                    if let Some(v) = v.as_constant() {
+                        self.check_finite(&format!("load.edge[{e}].{name}[{}]", i % 3), v)?;
+                    }
                 }
                 let clamped_by_default = shell.clamped.is_none() && shell.boundary.is_empty();
                 if clamped_by_default

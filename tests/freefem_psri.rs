@@ -71,6 +71,24 @@ fn space<'a>(r: &'a ResultFile, name: &str) -> &'a str {
         .1
 }
 
+/// `sets` and the overrides of a run of exactly K Uzawa steps with the fixed
+/// α = ALPHA (the thesis stop with a tolerance never met).
+fn exactly_k_uzawa_steps(sets: &[&str]) -> Vec<String> {
+    let alpha = format!("solver.alpha={ALPHA}");
+    let max_iter = format!("solver.max_iter={K}");
+    let mut all = sets.to_vec();
+    all.extend([
+        "solver.method=uzawa",
+        &alpha,
+        "solver.step_form=mean",
+        "solver.stop=thesis",
+        "solver.thesis_tol=1e-300",
+        &max_iter,
+        "output.plots=[]",
+    ]);
+    set_args(&all)
+}
+
 /// Same mesh and edges; the dof vectors `names` in the same spaces and within
 /// RTOL (entry by entry, and through `compare` in max and L² norms); the
 /// `compare` command agrees. Returns the worst relative difference.
@@ -147,19 +165,7 @@ fn clamped_plate_free_matches_freefem() {
 #[test]
 fn hypar_contact_after_k_uzawa_iterations_matches_freefem() {
     let dir = tempfile::tempdir().unwrap();
-    let alpha = format!("solver.alpha={ALPHA}");
-    let max_iter = format!("solver.max_iter={K}");
-    let extra = set_args(&[
-        "mesh.n=8",
-        "solver.method=uzawa",
-        &alpha,
-        "solver.step_form=mean",
-        // Exactly K iterations: the thesis stop with a tolerance never met.
-        "solver.stop=thesis",
-        "solver.thesis_tol=1e-300",
-        &max_iter,
-        "output.plots=[]",
-    ]);
+    let extra = exactly_k_uzawa_steps(&["mesh.n=8"]);
     let (rust, ff, rs, fs) = both(dir.path(), "hypar", &scene_arg("shell/hypar-psri"), &extra);
     let worst = assert_agree(&rust, &ff, &["u", "theta", "lambda"], "hypar n=8, K=20");
     let (a, b) = (read_result(&rust).unwrap(), read_result(&ff).unwrap());
@@ -249,18 +255,9 @@ fn charts_from_the_scene_match_freefem() {
     ]);
     let (rust, ff, _, _) = both(dir.path(), "sphere", &scene, &sphere);
     let worst_sphere = assert_agree(&rust, &ff, &["u", "theta"], "sphere band n=4");
-    let alpha = format!("solver.alpha={ALPHA}");
-    let max_iter = format!("solver.max_iter={K}");
-    let extra = set_args(&[
+    let extra = exactly_k_uzawa_steps(&[
         "mesh.n=8",
         r#"shell.chart={kind="graph", height="(x^2 - y^2)/5000 + 1.4"}"#,
-        "solver.method=uzawa",
-        &alpha,
-        "solver.step_form=mean",
-        "solver.stop=thesis",
-        "solver.thesis_tol=1e-300",
-        &max_iter,
-        "output.plots=[]",
     ]);
     let (rust, ff, _, _) = both(dir.path(), "graph", &scene_arg("shell/hypar-psri"), &extra);
     let worst_graph = assert_agree(&rust, &ff, &["u", "theta", "lambda"], "graph hypar n=8");

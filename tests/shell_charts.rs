@@ -24,16 +24,7 @@ fn number(file: &ResultFile, name: &str) -> f64 {
 
 /// max |a − b| / max |a| over a field.
 fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    let scale = a
-        .iter()
-        .fold(0.0f64, |m, v| m.max(v.abs()))
-        .max(f64::MIN_POSITIVE);
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
-        / scale
+    common::rel_diff(a, b).0
 }
 
 /// Each preset and its spelling as a parametric or graph chart: the same

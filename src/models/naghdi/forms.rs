@@ -765,6 +765,25 @@ fn edge_basis(
     }
 }
 
+/// The degree of the Gauss rule of the edge loads (5 points).
+const EDGE_RULE_DEGREE: usize = 9;
+
+/// The points where [`add_edge_load`] evaluates the loads on the boundary
+/// edges with tag `tag`.
+pub fn edge_quadrature_points(mesh: &Mesh, tag: i32) -> Vec<[f64; 2]> {
+    let rule = SegmentRule::exact_for(EDGE_RULE_DEGREE);
+    mesh.boundary_edges
+        .iter()
+        .filter(|e| e.tag == tag)
+        .flat_map(|edge| {
+            let [p, q] = edge.vertices.map(|v| mesh.vertices[v]);
+            rule.points
+                .iter()
+                .map(move |&s| [p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1])])
+        })
+        .collect()
+}
+
 /// Adds the edge loads ∫_γ1 (N·v + M·s) ℓ dσ to a full load vector, on the
 /// boundary edges with tag `tag`; ℓ = |a_α ς^α| is the chart's length element
 /// along the edge (ς the unit tangent in ω). With tangent rotations s =
@@ -775,11 +794,11 @@ pub fn add_edge_load(
     layout: &ShellLayout,
     chart: &Chart,
     tag: i32,
-    traction: [f64; 3],
-    moment: [f64; 3],
+    traction: &[Expression; 3],
+    moment: &[Expression; 3],
     f_full: &mut [f64],
 ) {
-    let rule = SegmentRule::exact_for(9);
+    let rule = SegmentRule::exact_for(EDGE_RULE_DEGREE);
     let edges = mesh.edge_lookup();
     for edge in mesh.boundary_edges.iter().filter(|e| e.tag == tag) {
         let [a, b] = edge.vertices;
@@ -793,7 +812,8 @@ pub fn add_edge_load(
             let x = [p[0] + s * d[0], p[1] + s * d[1]];
             let sp = chart.at(x);
             let ell = (sp.a1 * (d[0] / length) + sp.a2 * (d[1] / length)).norm();
-            let moment = Vector3::from(moment);
+            let traction = traction.each_ref().map(|t| t.eval(x));
+            let moment = Vector3::from(moment.each_ref().map(|m| m.eval(x)));
             for element in [Element::P1Bubble, Element::P2, Element::P2Bubble] {
                 for (dof, value) in edge_basis(element, edge.vertices, midpoint, s) {
                     let weight = w * length * ell * value;

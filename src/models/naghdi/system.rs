@@ -55,7 +55,7 @@ pub struct NaghdiSystem<'m> {
     /// The body force f and pressure p, the edge loads (tag, N, M) and the
     /// point loads (triangle, barycentric coordinates, F), resolved once.
     surface_load: SurfaceLoad,
-    edge_loads: Vec<(i32, [f64; 3], [f64; 3])>,
+    edge_loads: Vec<(i32, [Expression; 3], [Expression; 3])>,
     point_loads: Vec<(usize, [f64; 3], [f64; 3])>,
     /// The rigid body's height h(x, y): z < h is the obstacle (a number for the plane).
     pub height: Option<Expression>,
@@ -187,30 +187,37 @@ fn fixed_mask(
             BoundaryCondition::Free => Vec::new(),
             BoundaryCondition::Fixed => {
                 let names = b.fix.as_deref().unwrap_or_default();
+                let context = format!("part `{}`", b.part);
                 names
                     .iter()
-                    .map(|name| {
-                        layout.field_named(name).ok_or_else(|| Error::Scene {
-                            file: scene.source.clone(),
-                            field: "shell.boundary.fix".into(),
-                            reason: format!(
-                                "part `{}`: `{name}` is no field of element {}: {}",
-                                b.part,
-                                scene.element.name(),
-                                layout
-                                    .fields
-                                    .iter()
-                                    .map(|f| f.name)
-                                    .collect::<Vec<_>>()
-                                    .join(", ")
-                            ),
-                        })
-                    })
+                    .map(|name| field_named(scene, layout, "shell.boundary.fix", &context, name))
                     .collect::<Result<_>>()?
             }
         };
         // Clamping fixes ψ too (the thesis' ψ ∈ H¹₀(γ0)); no other condition does.
         fix_fields(mesh, layout, tags, fields, &mut fixed);
+    }
+    let supports = scene.shell.as_ref().map_or(&[][..], |s| &s.support[..]);
+    for (k, support) in supports.iter().enumerate() {
+        let scale = mesh.h_max();
+        let v = (0..mesh.n_vertices())
+            .find(|&v| {
+                let x = mesh.vertices[v];
+                (x[0] - support.at[0]).hypot(x[1] - support.at[1]) <= 1e-9 * scale
+            })
+            .ok_or_else(|| Error::Scene {
+                file: scene.source.clone(),
+                field: format!("shell.support[{k}].at"),
+                reason: format!(
+                    "({}, {}) is no vertex of the mesh: a support fixes the dofs of one vertex",
+                    support.at[0], support.at[1]
+                ),
+            })?;
+        let key = format!("shell.support[{k}].fix");
+        for name in &support.fix {
+            let f = field_named(scene, layout, &key, "support", name)?;
+            fixed[layout.fields[f].offset + v] = true;
+        }
     }
     // ψ is determined up to a constant where no clamped part fixes it
     // (b(U, 1) = 0): pin one boundary value (docs/shell-benchmarks.md).
@@ -379,7 +386,7 @@ impl<'m> NaghdiSystem<'m> {
             point_loads.push((t, l, point.force));
         }
         let mut edge_loads = Vec::new();
-        for edge in load.map_or(&[][..], |l| &l.edge[..]) {
+        for (e, edge) in load.map_or(&[][..], |l| &l.edge[..]).iter().enumerate() {
             let tags = named_boundary_tags(
                 mesh,
                 scene,
@@ -387,7 +394,18 @@ impl<'m> NaghdiSystem<'m> {
                 Some(std::slice::from_ref(&edge.part)),
             )?
             .expect("one name given");
-            edge_loads.push((tags[0], edge.traction, edge.moment));
+            let edge_points: Vec<[f64; 2]> = edge_quadrature_points(mesh, tags[0]);
+            for (i, v) in edge.traction.iter().chain(&edge.moment).enumerate() {
+                let name = if i < 3 { "traction" } else { "moment" };
+                let key = format!("load.edge[{e}].{name}[{}]", i % 3);
+                v.check_finite_at(&key, edge_points.iter().copied())
+                    .map_err(|reason| Error::Scene {
+                        file: scene.source.clone(),
+                        field: key.clone(),
+                        reason,
+                    })?;
+            }
+            edge_loads.push((tags[0], edge.traction.clone(), edge.moment.clone()));
         }
         let mut simulated = Vec::new();
         if !clamped_tags.is_empty() {
@@ -576,12 +594,12 @@ impl ModelSystem for NaghdiSystem<'_> {
             &self.surface_load,
             &self.numbering,
         );
-        for &(tag, traction, moment) in &self.edge_loads {
+        for (tag, traction, moment) in &self.edge_loads {
             add_edge_load(
                 self.mesh,
                 &self.layout,
                 &self.chart,
-                tag,
+                *tag,
                 traction,
                 moment,
                 &mut f_full,
@@ -882,6 +900,31 @@ fn min_max(v: &[f64]) -> (f64, f64) {
 /// acts along e3 only and one-sidedly). Refused before assembling, naming
 /// the free directions. (Rigid rotations are not detected here; a
 /// factorisation that fails on them reports the singular pivot.)
+/// The layout's field called `name` (`u3`, `theta1`, …); the error names
+/// `key`, the `context` and the fields there are.
+fn field_named(
+    scene: &Scene,
+    layout: &ShellLayout,
+    key: &str,
+    context: &str,
+    name: &str,
+) -> Result<usize> {
+    layout.field_named(name).ok_or_else(|| Error::Scene {
+        file: scene.source.clone(),
+        field: key.into(),
+        reason: format!(
+            "{context}: `{name}` is no field of element {}: {}",
+            scene.element.name(),
+            layout
+                .fields
+                .iter()
+                .map(|f| f.name)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    })
+}
+
 fn check_translations_fixed(scene: &Scene, layout: &ShellLayout, fixed: &[bool]) -> Result<()> {
     let free: Vec<&str> = (0..3)
         .filter(|&c| {
