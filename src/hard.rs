@@ -48,6 +48,7 @@ pub const CASES: &[(&str, Expect)] = &[
     ("contact-no-load", Expect::Converged),
     ("contact-huge-load", Expect::Converged),
     ("contact-touching", Expect::Converged),
+    ("contact-resting", Expect::Converged),
     ("contact-infeasible", Expect::Error("infeasible")),
     ("mesh-graded", Expect::Converged),
     ("mesh-aniso", Expect::Converged),

@@ -129,7 +129,41 @@ fn infeasible_obstacles_are_refused_before_solving() {
         &["mesh.n=4", "mesh.dirichlet_value=\"-0.3 + 0*x\""],
     );
     assert_one_error(&o, &["infeasible", "below the obstacle"], "g_D below ψ₁");
+    // Ordered at every vertex (ψ₂ − ψ₁ = 1e-3 + 0.3 r² − 50 r e^{−400 r²}
+    // is 1e-3 at the centre and positive beyond r = 0.15, where the other
+    // vertices of n = 4 lie), crossed between them: the bump lifts ψ₁ above
+    // ψ₂ around the centre, and P2–P1 tests the bounds by their moments
+    // against the centre's hat (3.76e-2 against 1.79e-2).
+    let crossed = [
+        "mesh.n=4",
+        "element=p2-p1",
+        "obstacle.lower=\"0.149 - 0.2*r^2 + 50*r*exp(-400*r^2)\"",
+        "obstacle.upper=\"0.15 + 0.1*r^2\"",
+    ];
+    let o = solve_scene(TWO_SIDED, &out, &crossed);
+    assert_one_error(
+        &o,
+        &[
+            "field `obstacle.upper`",
+            "the bounds' integrated moments cross: infeasible",
+            "at the vertex (0.000000, 0.000000)",
+            "obstacle.lower's moment",
+            "element p2-p1",
+        ],
+        "moments crossed",
+    );
+    assert!(!common::text(&o).contains("lies above the upper"));
     assert!(!out.exists());
+    // P1⊕B3–P0 tests the interpolants, ordered with the vertex values: solved.
+    let mut p1b = crossed;
+    p1b[1] = "element=p1b-p0";
+    let o = solve_scene(TWO_SIDED, &out, &p1b);
+    assert!(o.status.success(), "{}", common::text(&o));
+    let r = read_result(&out).unwrap();
+    assert!(matches!(
+        solver_attr(&r, "converged"),
+        AttrValue::Bool(true)
+    ));
 }
 
 /// Nonzero boundary values are lifted: without an obstacle u = g_D = x + 2y

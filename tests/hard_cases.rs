@@ -305,6 +305,114 @@ fn obstacle_touching_at_the_clamped_boundary_converges() {
     assert!(s.measures.penetration <= 1e-8);
 }
 
+/// The field `name` of a result.
+fn result_field(s: &RunSummary, name: &str) -> Vec<f64> {
+    let f = read_result(&s.result_file).unwrap();
+    let field = f.data.fields.iter().find(|f| f.name == name);
+    field
+        .unwrap_or_else(|| panic!("no field {name}"))
+        .values
+        .clone()
+}
+
+/// The plate resting on the plane (Φ ≡ 0, u = 0): the plane carries the
+/// load f3 = −0.25 pointwise, so every triangle is in contact with λ = 0.25
+/// and the gaps are round-off. Measured against the round-off ‖u‖∞ they
+/// would give a KKT measure of 1.8e-1 (n = 8) and the active set would
+/// stagnate; the contact forces' gap scale measures them (1.3e-16 at
+/// n = 16, 11 steps).
+#[test]
+fn plate_resting_on_the_plane_converges_with_every_triangle_in_contact() {
+    let s = converged("contact-resting");
+    assert!(s.measures.kkt <= 1e-8, "KKT {:.3e}", s.measures.kkt);
+    assert!(s.iterations <= 15, "{} active-set steps", s.iterations);
+    let area = attr(s, "contact_area");
+    assert!(
+        (area - 1e4).abs() <= 1e-9 * 1e4,
+        "contact area {area} of 10⁴"
+    );
+    let contact = result_field(s, "contact");
+    assert_eq!(contact.len(), s.n_triangles);
+    assert!(contact.iter().all(|&c| c == 1.0));
+    let lambda = result_field(s, "lambda");
+    for (t, l) in lambda.iter().enumerate() {
+        assert!((l - 0.25).abs() <= 1e-12, "λ = {l} on triangle {t}");
+    }
+    // Gaps and deflection in units of the thickness 0.8: round-off.
+    for (t, g) in result_field(s, "gap_mean").iter().enumerate() {
+        assert!(g.abs() <= 1e-15, "mean gap {g:e} on triangle {t}");
+    }
+    let u3_min = attr(s, "u3_min");
+    assert!(u3_min.abs() <= 1e-15, "u3 min {u3_min:e}");
+}
+
+/// The resting plate (height 0.4) against its neighbour 1e-5 above the
+/// plane, n = 8, each method: the zero obstacle is no harder. The active
+/// set converges from every cold start; FISTA in as many iterations (1474
+/// and 1482); Uzawa and the first splitting contract slowly on both
+/// (κ(S) ≈ 5e3 with every triangle active) and stand as far from tol after
+/// 2000 iterations (KKT 8.7e-2 and 9.0e-2 resting, 7.0e-2 and 7.3e-2 above).
+#[test]
+fn resting_plate_is_no_harder_than_its_neighbour_for_every_method() {
+    let run = |label: &str, height: &str, method: &[&str]| -> RunSummary {
+        let mut overrides = vec![
+            "mesh.n=8".to_string(),
+            format!("shell.chart.height={height}"),
+            "solver.max_iter=2000".to_string(),
+        ];
+        overrides.extend(method.iter().map(|o| o.to_string()));
+        let out = out_dir().join(format!("resting-{label}-{height}"));
+        let row = run_case(
+            Path::new(DIR),
+            "contact-resting",
+            Expect::Converged,
+            &overrides,
+            &out,
+        );
+        row.outcome
+            .unwrap_or_else(|e| panic!("{label} at height {height}: {e}"))
+    };
+    for cold in ["plain", "depth-bisection", "interior-point"] {
+        let s = run(
+            cold,
+            "0.4",
+            &[
+                "solver.method=active-set",
+                &format!("solver.cold_start={cold}"),
+            ],
+        );
+        assert!(s.converged, "{cold}: KKT {:.3e}", s.measures.kkt);
+        assert!(s.iterations <= 12, "{cold}: {} steps", s.iterations);
+    }
+    let fista = ["solver.method=dual-accelerated"];
+    let (resting, above) = (run("fista", "0.4", &fista), run("fista", "0.40001", &fista));
+    assert!(resting.converged && above.converged);
+    assert!(
+        resting.iterations as f64 <= 1.1 * above.iterations as f64,
+        "FISTA: {} iterations resting, {} above",
+        resting.iterations,
+        above.iterations
+    );
+    let uzawa = [
+        "solver.method=uzawa",
+        "solver.alpha=auto",
+        "solver.step_form=mean",
+    ];
+    for (label, method) in [
+        ("uzawa", &uzawa[..]),
+        ("split", &["solver.method=uzawa-split"][..]),
+    ] {
+        let (resting, above) = (run(label, "0.4", method), run(label, "0.40001", method));
+        assert_eq!(resting.stop_reason, "max_iter");
+        assert!(
+            resting.measures.kkt <= 2.0 * above.measures.kkt,
+            "{label}: KKT {:.3e} resting, {:.3e} above",
+            resting.measures.kkt,
+            above.measures.kkt
+        );
+    }
+}
+
 #[test]
 fn infeasible_obstacle_is_detected_before_iterating() {
     failed(

@@ -152,7 +152,7 @@ impl<'m> MembraneSystem<'m> {
         if scene.obstacle.is_some() {
             simulated.push("obstacle".into());
         }
-        Ok(MembraneSystem {
+        let system = MembraneSystem {
             mesh,
             pair: scene.element,
             u_space,
@@ -165,6 +165,48 @@ impl<'m> MembraneSystem<'m> {
             boundary_values,
             exact: scene.output.exact.clone(),
             simulated,
+        };
+        system.check_rows_ordered(scene)?;
+        Ok(system)
+    }
+
+    /// g₁,i ≤ g₂,i for every multiplier i of a two-sided scene, else the
+    /// discrete problem is infeasible: rows i of C x ≥ g₁ and −C x ≥ −g₂
+    /// hold the same (C x)_i between them. Ordered vertex values
+    /// ([`check_obstacles_ordered`]) give ordered rows for P1⊕B3–P0,
+    /// whose rows integrate the interpolants; P2–P1 integrates the
+    /// expressions themselves against each hat μ_i, so bounds that touch at
+    /// the vertices and cross between them can order the moments the
+    /// other way.
+    fn check_rows_ordered(&self, scene: &Scene) -> Result<()> {
+        let (Some(obstacle), Some(phi), Some(upper_values)) =
+            (&self.obstacle, &self.phi, &self.upper)
+        else {
+            return Ok(());
+        };
+        let Some(upper) = &obstacle.upper else {
+            return Ok(());
+        };
+        let rule = TriangleRule::exact_for(MEMBRANE_RULE);
+        let (lower_rows, _) = self.obstacle_rows(phi, |x| obstacle.value(x), &rule);
+        let (upper_rows, _) = self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
+        let Some(i) = (0..lower_rows.len()).find(|&i| lower_rows[i] > upper_rows[i]) else {
+            return Ok(());
+        };
+        let [x, y] = dof_points(&self.lambda_space)[i];
+        let (node, moment) = match self.lambda_space.element {
+            Element::P0 => ("in the triangle with centroid", "∫_T ψ"),
+            _ => ("at the vertex", "∫ψ μ_i (μ_i its hat function)"),
+        };
+        Err(Error::Scene {
+            file: scene.source.clone(),
+            field: "obstacle.upper".into(),
+            reason: format!(
+                "the bounds' integrated moments cross: infeasible: {node} ({x:.6}, {y:.6}) obstacle.lower's moment {moment} is {:.6e}, above obstacle.upper's {:.6e}; the constraint holds u between these moments (element {}), so no u is admissible although the bounds are ordered at every vertex",
+                lower_rows[i],
+                upper_rows[i],
+                scene.element.name()
+            ),
         })
     }
 

@@ -101,7 +101,7 @@
 //! an earlier iteration is cycling (possible when A is not an M-matrix);
 //! both are errors that say so. `max_iter` gives a non-converged report.
 
-use super::measures::{kkt_measures_with, KktMeasures, Products};
+use super::measures::{jacobi_dual_diagonal, kkt_measures_with, KktMeasures, Products};
 use super::monitor::check_finite;
 use super::uzawa::solve_unconstrained;
 use super::{named, Constraint, ContactProblem, ReportBuilder, SolveReport};
@@ -207,6 +207,9 @@ struct NewtonMatrix {
     switched_off: f64,
     /// The scaling s_i (λ_i = s_i μ_i).
     scale: Vec<f64>,
+    /// S̃ of A for the measures ([`jacobi_dual_diagonal`]), which cannot
+    /// read A while it is lent.
+    compliance: Vec<f64>,
 }
 
 impl NewtonMatrix {
@@ -214,7 +217,7 @@ impl NewtonMatrix {
     /// it takes (`problem.matrix` is empty until [`NewtonMatrix::give_back`];
     /// read A x through [`NewtonMatrix::a_product`] meanwhile). A symmetric
     /// A is first kept as its lower triangle.
-    fn lend(problem: &mut ContactProblem, kind: MatrixKind) -> Result<Self> {
+    fn lend(problem: &mut ContactProblem, kind: MatrixKind, compliance: Vec<f64>) -> Result<Self> {
         let lower = kind != MatrixKind::General;
         if lower {
             problem.store_lower_triangle();
@@ -291,6 +294,7 @@ impl NewtonMatrix {
             diagonal,
             switched_off: a_max / (f64::EPSILON * f64::EPSILON),
             scale,
+            compliance,
         })
     }
 
@@ -389,11 +393,12 @@ pub fn active_set(problem: &mut ContactProblem, options: &ActiveSetOptions) -> R
     }
 
     // c_i: the scalar option, or the Jacobi estimate 1/S̃_ii.
+    let compliance = jacobi_dual_diagonal(problem);
     let c_rule: Vec<f64> = match options.c {
         Some(v) => vec![v; m],
-        None => jacobi_dual_diagonal(problem)
-            .into_iter()
-            .map(|s| if s > 0.0 { 1.0 / s } else { 1.0 })
+        None => compliance
+            .iter()
+            .map(|&s| if s > 0.0 { 1.0 / s } else { 1.0 })
             .collect(),
     };
     if c_rule.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
@@ -411,7 +416,7 @@ pub fn active_set(problem: &mut ContactProblem, options: &ActiveSetOptions) -> R
             }
         }
     };
-    let mut newton = NewtonMatrix::lend(problem, kind)?;
+    let mut newton = NewtonMatrix::lend(problem, kind, compliance)?;
     let report = newton_steps(problem, &mut newton, &c_rule, options, (start, t));
     newton.give_back(problem);
     report
@@ -588,7 +593,7 @@ fn newton_steps(
             .fold(0.0f64, |s, (a, b)| s.max((a - b).abs()));
         lambda = new_lambda;
         let products = IterateProducts::of(newton, problem, &x, &lambda);
-        let measures = products.measures(problem, &x, &lambda);
+        let measures = products.measures(newton, problem, &x, &lambda);
         let cx = products.cx;
         let added = (0..m).filter(|&i| active[i] && !previous[i]).count();
         let removed = (0..m).filter(|&i| !active[i] && previous[i]).count();
@@ -631,10 +636,14 @@ fn newton_steps(
                 STAGE,
                 "KKT measure",
                 format!(
-                    "stagnation at iteration {k}: the active set ({} constraints) did not change but the relative KKT measure is {:.3e} > tol {:.1e} (linear residual {linear_residual:.1e}): the tolerance is below the accuracy of the linear solves",
+                    "stagnation at iteration {k}: the active set ({} constraints) did not change but the relative KKT measure is {:.3e} > tol {:.1e} (penetration {:.1e}, complementarity {:.1e}, stationarity {:.1e}, gap scale {:.1e}; linear residual {linear_residual:.1e}): the tolerance is below the accuracy of the linear solves",
                     count(&active),
                     measures.kkt,
-                    options.tol
+                    options.tol,
+                    measures.penetration,
+                    measures.complementarity,
+                    measures.stationarity,
+                    measures.gap_scale
                 ),
             ));
         }
@@ -911,42 +920,6 @@ fn pdas_rule(c: &Constraint, c_rule: &[f64], cx: &[f64], lambda: &[f64]) -> Vec<
         .collect()
 }
 
-/// S̃_ii = (1/w_i) Σ_j C_ij² / |A_jj|: the diagonal of the mean-form dual
-/// operator W⁻¹ C A⁻¹ Cᵀ with A replaced by its diagonal (0 where C's row
-/// meets no nonzero diagonal entry).
-pub fn jacobi_dual_diagonal(problem: &ContactProblem) -> Vec<f64> {
-    let Some(c) = problem.constraint.as_ref() else {
-        return Vec::new();
-    };
-    let a = &problem.matrix;
-    let diag: Vec<f64> = (0..a.ncols())
-        .map(|j| {
-            a.symbolic()
-                .row_idx_of_col(j)
-                .zip(a.val_of_col(j))
-                .filter(|(r, _)| *r == j)
-                .map(|(_, v)| v.abs())
-                .sum()
-        })
-        .collect();
-    let mut s = vec![0.0; c.obstacle.len()];
-    for j in 0..c.matrix.ncols() {
-        if diag[j] == 0.0 {
-            continue;
-        }
-        for (i, v) in c
-            .matrix
-            .symbolic()
-            .row_idx_of_col(j)
-            .zip(c.matrix.val_of_col(j))
-        {
-            s[i] += v * v / diag[j];
-        }
-    }
-    s.iter_mut().zip(&c.weights).for_each(|(si, w)| *si /= w);
-    s
-}
-
 /// What the depth bisection proposes after a solve.
 enum Probe {
     /// The next probe.
@@ -1161,7 +1134,7 @@ impl InteriorPoint<'_> {
         self.record(
             report,
             (1, 0.0),
-            products.measures(problem, &x, &lambda),
+            products.measures(newton, problem, &x, &lambda),
             &predicted,
             &vec![false; m],
             max_residual,
@@ -1299,7 +1272,7 @@ impl InteriorPoint<'_> {
             let changes = self.record(
                 report,
                 (k, alpha * norm_inf(&dl)),
-                products.measures(problem, &x, &lambda),
+                products.measures(newton, problem, &x, &lambda),
                 &predicted,
                 &before,
                 residual,
@@ -1369,11 +1342,18 @@ impl IterateProducts {
         }
     }
 
-    fn measures(&self, problem: &ContactProblem, x: &[f64], lambda: &[f64]) -> KktMeasures {
+    fn measures(
+        &self,
+        newton: &NewtonMatrix,
+        problem: &ContactProblem,
+        x: &[f64],
+        lambda: &[f64],
+    ) -> KktMeasures {
         let products = Products {
             ax: Some(&self.ax),
             cx: Some(&self.cx),
             ct_lambda: Some(&self.ct_lambda),
+            compliance: Some(&newton.compliance),
         };
         kkt_measures_with(problem, x, lambda, products)
     }

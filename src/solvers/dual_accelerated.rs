@@ -28,7 +28,7 @@
 //! small), and stagnation (the best KKT measure did not improve by 1% over
 //! `stall_window` iterations).
 
-use super::measures::kkt_measures;
+use super::measures::{jacobi_dual_diagonal, kkt_measures_with, Products};
 use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
 use super::uzawa::solve_unconstrained;
@@ -150,6 +150,7 @@ pub fn dual_accelerated(
             options.show_progress,
         );
     let mut restarts = 0usize;
+    let compliance = jacobi_dual_diagonal(problem);
     for k in 1..=options.max_iter {
         // λ^k = max(0, y − ḡ(x(y))/L)
         let cy = mat_vec(&c.matrix, &xy);
@@ -160,7 +161,12 @@ pub fn dual_accelerated(
         let new_x = primal_solve(&new_lambda);
         monitor.finite(k, "primal iterate", &new_x)?;
         let cx = mat_vec(&c.matrix, &new_x);
-        let measures = kkt_measures(problem, &new_x, &new_lambda, Some(&cx));
+        let products = Products {
+            cx: Some(&cx),
+            compliance: Some(&compliance),
+            ..Products::default()
+        };
+        let measures = kkt_measures_with(problem, &new_x, &new_lambda, products);
         let dual_step = new_lambda
             .iter()
             .zip(&lambda)

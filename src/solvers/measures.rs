@@ -20,7 +20,11 @@ pub struct KktMeasures {
     pub tangency: f64,
     /// Number of multipliers with λ_i > 0.
     pub active: usize,
-    /// The scale of gaps: max(‖ḡ(0)‖∞ = ‖g_i/w_i‖∞, ‖x_primal‖∞).
+    /// The scale of gaps: max(‖ḡ(0)‖∞ = ‖g_i/w_i‖∞, ‖x_primal‖∞,
+    /// max_i |λ_i| S̃_ii), the last the mean gap the contact force λ_i
+    /// alone opens ([`jacobi_dual_diagonal`]): a body resting on a zero
+    /// obstacle has g = 0 and x = 0, and without it the gaps' round-off
+    /// would be measured against x's.
     pub gap_scale: f64,
     /// The largest relative measure: penetration/gap_scale,
     /// max(0, −dual_min)/‖λ‖∞, complementarity/(‖λ‖∞ gap_scale),
@@ -47,9 +51,10 @@ pub fn kkt_measures(
     )
 }
 
-/// Products of an iterate (x, λ) its solver has at hand: the measures take
-/// them instead of computing them again (the same functions, so the same
-/// numbers). None: computed here.
+/// Products of an iterate (x, λ) its solver has at hand, and the
+/// problem's compliance S̃: the measures take them instead of computing
+/// them again (the same functions, so the same numbers). None: computed
+/// here.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Products<'a> {
     /// A x.
@@ -58,6 +63,9 @@ pub struct Products<'a> {
     pub cx: Option<&'a [f64]>,
     /// Cᵀ λ.
     pub ct_lambda: Option<&'a [f64]>,
+    /// S̃_ii of [`jacobi_dual_diagonal`], the same for every iterate of a
+    /// solve (and not computable while the active set holds A).
+    pub compliance: Option<&'a [f64]>,
 }
 
 /// [`kkt_measures`] with the products the caller has.
@@ -109,7 +117,22 @@ pub fn kkt_measures_with(
             .iter()
             .zip(&c.weights)
             .fold(0.0f64, |s, (g, w)| s.max((g / w).abs()));
-        m.gap_scale = obstacle_scale.max(x_scale).max(f64::MIN_POSITIVE);
+        let computed_compliance;
+        let compliance = match products.compliance {
+            Some(v) => v,
+            None => {
+                computed_compliance = jacobi_dual_diagonal(problem);
+                &computed_compliance
+            }
+        };
+        let contact_gap = lambda
+            .iter()
+            .zip(compliance)
+            .fold(0.0f64, |s, (l, c)| s.max((l * c).abs()));
+        m.gap_scale = obstacle_scale
+            .max(x_scale)
+            .max(contact_gap)
+            .max(f64::MIN_POSITIVE);
         let lambda_scale = norm_inf(lambda).max(f64::MIN_POSITIVE);
         m.dual_min = f64::INFINITY;
         for i in 0..lambda.len() {
@@ -135,6 +158,44 @@ pub fn kkt_measures_with(
     let tangency_rel = m.tangency / (f_norm + norm2(x));
     m.kkt = m.kkt.max(m.stationarity).max(tangency_rel);
     m
+}
+
+/// S̃_ii = (1/w_i) Σ_j C_ij² / |A_jj|: the diagonal of the mean-form dual
+/// operator W⁻¹ C A⁻¹ Cᵀ with A replaced by its diagonal (0 where C's row
+/// meets no nonzero diagonal entry), the mean gap a unit multiplier λ_i
+/// opens on its own: the gap scale of the measures and the active set's
+/// rule c_i = 1/S̃_ii.
+pub fn jacobi_dual_diagonal(problem: &ContactProblem) -> Vec<f64> {
+    let Some(c) = problem.constraint.as_ref() else {
+        return Vec::new();
+    };
+    let a = &problem.matrix;
+    let diag: Vec<f64> = (0..a.ncols())
+        .map(|j| {
+            a.symbolic()
+                .row_idx_of_col(j)
+                .zip(a.val_of_col(j))
+                .filter(|(r, _)| *r == j)
+                .map(|(_, v)| v.abs())
+                .sum()
+        })
+        .collect();
+    let mut s = vec![0.0; c.obstacle.len()];
+    for j in 0..c.matrix.ncols() {
+        if diag[j] == 0.0 {
+            continue;
+        }
+        for (i, v) in c
+            .matrix
+            .symbolic()
+            .row_idx_of_col(j)
+            .zip(c.matrix.val_of_col(j))
+        {
+            s[i] += v * v / diag[j];
+        }
+    }
+    s.iter_mut().zip(&c.weights).for_each(|(si, w)| *si /= w);
+    s
 }
 
 /// ‖λ^{k+1} − λ^k‖ in the chosen norm (L²: Σ w_i Δλ_i², the L²(Ω) norm of the

@@ -10,7 +10,9 @@
 //! (penetration ḡ < 0 raises λ). The reported iterate after k iterations is
 //! (x^k, λ^k), and its KKT measures are computed honestly for that pair.
 
-use super::measures::{dual_step_norm, kkt_measures, kkt_measures_with, Products};
+use super::measures::{
+    dual_step_norm, jacobi_dual_diagonal, kkt_measures, kkt_measures_with, Products,
+};
 use super::monitor::{check_finite, Monitor};
 use super::spectrum::{estimate_dual_spectrum, SpectrumEstimate};
 use super::{
@@ -156,6 +158,7 @@ pub fn uzawa(
     // Cᵀ λ^{k−1}: the right-hand side of iteration k and, computed at the
     // end of iteration k−1, its stationarity measure; one product serves both.
     let mut ct_lambda = mat_t_vec(&c.matrix, &lambda);
+    let compliance = jacobi_dual_diagonal(problem);
     for k in 1..=options.max_iter {
         // x^k = A⁻¹ (F + Cᵀ λ^{k−1})
         x.iter_mut()
@@ -181,6 +184,7 @@ pub fn uzawa(
             ax: ax.as_deref(),
             cx: Some(&cx),
             ct_lambda: Some(&ct_lambda),
+            compliance: Some(&compliance),
         };
         let measures = kkt_measures_with(problem, &x, &lambda, products);
         let probe_values: Vec<f64> = probes.iter().map(|p| (p.evaluate)(&x, &lambda)).collect();

@@ -51,7 +51,7 @@
 //! Stops on the relative KKT measure only; errors on non-finite values,
 //! divergence and stagnation (as [`super::dual_accelerated()`]).
 
-use super::measures::kkt_measures;
+use super::measures::{jacobi_dual_diagonal, kkt_measures_with, Products};
 use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, ReportBuilder, SolveReport};
@@ -343,6 +343,7 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     let mut monitor = Monitor::new(STAGE, "multiplier steps")
         .with_cycle_window(CYCLE_WINDOW)
         .with_stagnation_window(options.stall_window);
+    let compliance = jacobi_dual_diagonal(problem);
     for k in 1..=options.max_iter {
         // K U = F_U − Bᵀψ + Cᵀλ
         // Bᵀψ from B: A may be stored as its lower triangle.
@@ -376,7 +377,11 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
         }
         x[..np].copy_from_slice(&u);
         x[np..].copy_from_slice(&psi);
-        let measures = kkt_measures(problem, &x, &lambda, None);
+        let products = Products {
+            compliance: Some(&compliance),
+            ..Products::default()
+        };
+        let measures = kkt_measures_with(problem, &x, &lambda, products);
         report.record(k, dual_step, measures, &[measures.active as f64, psi_step]);
         if measures.kkt <= options.tol {
             report.stop("kkt");
