@@ -144,7 +144,14 @@ fn output_and_plots_know_no_scenes_or_models() {
         "output/ knows mesh, space and its own types, no model, scene or transfer",
         only_imports(
             "output/",
-            &["error", "mesh", "space", "quadrature", "assembly", "console"],
+            &[
+                "error",
+                "mesh",
+                "space",
+                "quadrature",
+                "assembly",
+                "console",
+            ],
         ),
     );
     assert_none(

@@ -15,9 +15,9 @@
 use super::estimator::{shell_indicators, ShellContact, ShellState};
 use super::forms::{
     add_edge_load, add_point_load, assemble_shell_layout, balanced_tangency_scale,
-    constraint_factor, fix_fields, nodal_plane_constraint, obstacle_at_vertices, plane_constraint,
-    restrict_shell, scale_tangency_multiplier, FieldRole, ShellElementKind, ShellLayout,
-    SurfaceLoad,
+    constraint_factor, edge_quadrature_points, fix_fields, nodal_plane_constraint,
+    obstacle_at_vertices, plane_constraint, restrict_shell, scale_tangency_multiplier, FieldRole,
+    ShellElementKind, ShellLayout, SurfaceLoad,
 };
 use super::geometry::{obstacle_function, Chart, Material};
 use crate::assembly::{quad_points, quadrature_points, DofNumbering};
