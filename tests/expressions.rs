@@ -99,6 +99,26 @@ fn hard_expressions_are_read_or_refused_by_key() {
     }
 }
 
+/// A scene's exact solution is checked where the errors evaluate it (u, λ and
+/// the exact ∇u at the degree-10 rule's points), before anything is solved.
+#[test]
+fn a_non_finite_exact_solution_is_refused_before_solving() {
+    let dir = tmp();
+    let out = dir.path().join("r.h5");
+    for (set, key) in [
+        ("output.exact.u=\"ln(x + 0.5)\"", "output.exact.u"),
+        ("output.exact.lambda=\"sqrt(y)\"", "output.exact.lambda"),
+        (
+            "output.exact.u=\"acos(min(1, 1 + x))\"",
+            "output.exact.u (∂u/∂x)",
+        ),
+    ] {
+        let o = solve_scene("lshape", &out, &[set, "mesh.n=4", "output.errors=true"]);
+        assert_one_error(&o, &[key, "at the point"], set);
+        assert!(!out.exists());
+    }
+}
+
 /// ψ₁ > ψ₂ somewhere, and boundary values outside [ψ₁, ψ₂]: refused before
 /// solving, naming the point.
 #[test]

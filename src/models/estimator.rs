@@ -169,14 +169,19 @@ fn on_edge(mesh: &Mesh, t: usize, [a, b]: [usize; 2], s: f64) -> [f64; 3] {
     l
 }
 
+/// The degree of the estimators' area rule (membrane and shell): 6 covers
+/// (g + λ_h + Δu_h)² for both membrane pairs exactly. Scene data evaluated
+/// there is checked there too, before solving.
+pub const ESTIMATOR_RULE: usize = 6;
+
 /// The indicators of every triangle (docs/formulation.md §8).
 pub fn membrane_indicators(state: &MembraneState) -> Indicators {
     let space = &state.u_space;
     let mesh = space.mesh;
     let nt = mesh.n_triangles();
-    // Degree 6 covers (g + λ_h + Δu_h)² for both pairs exactly; the positive
-    // parts in the contact terms are resolved to quadrature accuracy only.
-    let rule = TriangleRule::exact_for(6);
+    // The positive parts in the contact terms are resolved to quadrature
+    // accuracy only.
+    let rule = TriangleRule::exact_for(ESTIMATOR_RULE);
     let mut ind = Indicators::zeros(nt);
     for t in 0..nt {
         let g = TriangleGeometry::new(mesh, t);

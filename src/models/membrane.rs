@@ -86,7 +86,12 @@ impl<'m> MembraneSystem<'m> {
             field: field.into(),
             reason,
         };
-        load.check_finite_at("load.g", quadrature_points(mesh, &rule))
+        // ... and the estimator at its own rule's.
+        let estimator_rule = TriangleRule::exact_for(super::estimator::ESTIMATOR_RULE);
+        let load_points = quadrature_points(mesh, &rule)
+            .into_iter()
+            .chain(quadrature_points(mesh, &estimator_rule));
+        load.check_finite_at("load.g", load_points)
             .map_err(|r| expression_error("load.g", r))?;
         let p1 = Space::new(mesh, Element::P1);
         let boundary_values = match &scene.mesh.dirichlet_value {
@@ -147,6 +152,22 @@ impl<'m> MembraneSystem<'m> {
         };
         if scene.output.errors {
             check_exact_solution_applies(mesh, scene, tags.is_none())?;
+        }
+        if let (Some(exact), true) = (&scene.output.exact, scene.output.errors) {
+            // Checked where the errors evaluate them, before anything is solved.
+            let points = exact_error_points(mesh);
+            let gradient = exact_gradient(exact)
+                .map_err(|reason| expression_error("output.exact.u", reason))?;
+            let keyed = [
+                ("output.exact.u", &exact.u),
+                ("output.exact.lambda", &exact.lambda),
+                ("output.exact.u (∂u/∂x)", &gradient[0]),
+                ("output.exact.u (∂u/∂y)", &gradient[1]),
+            ];
+            for (key, e) in keyed {
+                e.check_finite_at(key, points.iter().copied())
+                    .map_err(|reason| expression_error(key, reason))?;
+            }
         }
         let mut simulated = vec!["load".to_string(), "dirichlet".to_string()];
         if scene.obstacle.is_some() {
@@ -253,45 +274,58 @@ impl<'m> MembraneSystem<'m> {
     }
 }
 
-/// What errors are measured against: the disk's radial solution or a scene's.
+/// What errors are measured against: the disk's radial solution or a
+/// scene's, with the exact gradient of its u (the expression differentiated).
 enum ExactSolution {
     Radial(RadialObstacle),
-    Given(Box<ExactSpec>),
+    Given {
+        spec: Box<ExactSpec>,
+        grad_u: Box<[Expression; 2]>,
+    },
 }
+
+/// ∇u of a scene's exact solution, exactly (`Expression::derivative`).
+fn exact_gradient(spec: &ExactSpec) -> std::result::Result<[Expression; 2], String> {
+    use crate::expression::Variable::{X, Y};
+    Ok([spec.u.derivative(X)?, spec.u.derivative(Y)?])
+}
+
+/// The points where the errors against an exact solution evaluate it: the
+/// degree-10 rule of [`MembraneSystem::exact_errors`].
+fn exact_error_points(mesh: &Mesh) -> Vec<[f64; 2]> {
+    quadrature_points(mesh, &TriangleRule::exact_for(EXACT_ERROR_RULE))
+}
+
+/// The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
+/// a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
+const EXACT_ERROR_RULE: usize = 10;
 
 impl ExactSolution {
     fn u(&self, x: [f64; 2]) -> f64 {
         match self {
             ExactSolution::Radial(e) => e.u(x),
-            ExactSolution::Given(e) => e.u.eval(x),
+            ExactSolution::Given { spec, .. } => spec.u.eval(x),
         }
     }
 
-    /// ∇u; a scene's u by central differences (error O(h²) ≈ 1e-10, far
-    /// below the discretisation error measured). The step stays below
-    /// `max_step` so that a difference at a quadrature point never leaves its
-    /// triangle: near a re-entrant corner it would cross the branch cut of θ.
-    fn grad_u(&self, x: [f64; 2], max_step: f64) -> [f64; 2] {
+    fn grad_u(&self, x: [f64; 2]) -> [f64; 2] {
         match self {
             ExactSolution::Radial(e) => e.grad_u(x),
-            ExactSolution::Given(e) => {
-                let h = (1e-5 * (1.0 + x[0].abs().max(x[1].abs()))).min(max_step);
-                super::estimator::central_gradient(|p| e.u.eval(p), x, h)
-            }
+            ExactSolution::Given { grad_u, .. } => [grad_u[0].eval(x), grad_u[1].eval(x)],
         }
     }
 
     fn lambda(&self, x: [f64; 2]) -> f64 {
         match self {
             ExactSolution::Radial(e) => e.lambda(x),
-            ExactSolution::Given(e) => e.lambda.eval(x),
+            ExactSolution::Given { spec, .. } => spec.lambda.eval(x),
         }
     }
 
     fn contact_radius(&self) -> f64 {
         match self {
             ExactSolution::Radial(e) => e.a,
-            ExactSolution::Given(e) => e.contact_radius,
+            ExactSolution::Given { spec, .. } => spec.contact_radius,
         }
     }
 }
@@ -481,7 +515,10 @@ impl ModelSystem for MembraneSystem<'_> {
     fn exact_errors(&self, problem: &ContactProblem, report: &SolveReport) -> Option<ExactErrors> {
         let (obstacle, constraint) = (self.obstacle.as_ref()?, problem.constraint.as_ref()?);
         let exact = match &self.exact {
-            Some(given) => ExactSolution::Given(Box::new(given.clone())),
+            Some(given) => ExactSolution::Given {
+                spec: Box::new(given.clone()),
+                grad_u: Box::new(exact_gradient(given).ok()?),
+            },
             None if obstacle.shape == crate::scene::ObstacleShape::Paraboloid => {
                 ExactSolution::Radial(RadialObstacle::new(
                     self.load.as_constant()?,
@@ -492,16 +529,12 @@ impl ModelSystem for MembraneSystem<'_> {
             None => return None,
         };
         let u = self.u_coefficients(report);
-        // The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
-        // a degree-10 collapsed Gauss rule keeps quadrature error far below the FE error.
-        let rule = TriangleRule::exact_for(10);
+        let rule = TriangleRule::exact_for(EXACT_ERROR_RULE);
         let l2 = integrate_per_triangle(&self.u_space, &u, &rule, |uh, p| {
             (uh.value - exact.u(p.x)).powi(2)
         });
-        // The degree-10 rule's points lie ≳ 1e-3 h_T inside their triangle.
-        let max_step = 1e-4 * self.mesh.h_min();
         let h1 = integrate_per_triangle(&self.u_space, &u, &rule, |uh, p| {
-            let e = exact.grad_u(p.x, max_step);
+            let e = exact.grad_u(p.x);
             (uh.grad[0] - e[0]).powi(2) + (uh.grad[1] - e[1]).powi(2)
         });
         let lam = integrate_per_triangle(&self.lambda_space, &report.lambda, &rule, |lh, p| {

@@ -182,7 +182,7 @@ pub fn shell_indicators(state: &ShellState) -> Indicators {
     // (a displacement gradient) multiplied, so every term is an energy.
     let stiffness = material.young * material.thickness;
     let half_eps = 0.5 * material.thickness;
-    let rule = TriangleRule::exact_for(6);
+    let rule = TriangleRule::exact_for(crate::models::estimator::ESTIMATOR_RULE);
     let mut ind = Indicators::zeros(nt);
     for t in 0..nt {
         let g = TriangleGeometry::new(mesh, t);

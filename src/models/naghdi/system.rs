@@ -350,9 +350,15 @@ impl<'m> NaghdiSystem<'m> {
             pressure: load.and_then(|l| l.pressure.clone()),
         };
         // Where assembly evaluates the body force and the P1 constraint the
-        // obstacle: Radon's 7 points (the PSRI passes' lower-degree rules are
-        // not checked separately).
-        let rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
+        // obstacle: Radon's 7 points (the PSRI passes' lower-degree rules
+        // evaluate no data); the estimator's rule; the origin, where the
+        // `gap_origin` probe evaluates the obstacle.
+        let estimator_rule = TriangleRule::exact_for(crate::models::estimator::ESTIMATOR_RULE);
+        let mut rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
+        rule_points.extend(quadrature_points(mesh, &estimator_rule));
+        if PointLocator::new(mesh).locate([0.0, 0.0]).is_some() {
+            rule_points.push([0.0, 0.0]);
+        }
         let keyed = surface_load
             .force
             .iter()
