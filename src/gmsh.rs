@@ -179,8 +179,10 @@ fn run_gmsh_with(
         }
     };
     if let Err(reason) = check_msh(&String::from_utf8_lossy(&text)) {
+        let folder = tmp.parent().unwrap_or(Path::new("."));
+        let hint = disk_full_hint(folder, free_bytes(folder));
         return Err(err(format!(
-            "gmsh exited normally but {reason}; its output:\n{log}"
+            "gmsh exited normally but {reason}{hint}; its output:\n{log}"
         )));
     }
     #[cfg(unix)]
@@ -200,6 +202,31 @@ fn run_gmsh_with(
         ))
     })?;
     Ok(())
+}
+
+/// Below this many free bytes a truncated mesh file is blamed on a full disk.
+const NEARLY_FULL_BYTES: u64 = 1 << 20;
+
+/// The bytes free to an unprivileged writer on the file system of `folder`.
+fn free_bytes(folder: &Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c_path = std::ffi::CString::new(folder.as_os_str().as_bytes()).ok()?;
+    let mut stat: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: a NUL-terminated path and a zeroed statvfs for the call to fill.
+    let status = unsafe { libc::statvfs(c_path.as_ptr(), &mut stat) };
+    (status == 0).then(|| stat.f_bavail as u64 * stat.f_frsize as u64)
+}
+
+/// gmsh reports no write error when the disk fills: its mesh file is just
+/// short. A nearly full file system is named as the likely cause.
+fn disk_full_hint(folder: &Path, free: Option<u64>) -> String {
+    match free {
+        Some(free) if free < NEARLY_FULL_BYTES => format!(
+            " (the file system of {} has {free} bytes free: the disk is full, which truncates the mesh file)",
+            folder.display()
+        ),
+        _ => String::new(),
+    }
 }
 
 /// Quick sanity check of gmsh's output: non-empty, with an `$Elements`
@@ -255,6 +282,24 @@ mod tests {
             Error::Gmsh { reason, .. } => reason,
             other => panic!("expected Error::Gmsh, got {other:?}"),
         }
+    }
+
+    /// A full disk is named, with the folder and its free bytes; a disk
+    /// with room is not blamed.
+    #[test]
+    fn a_nearly_full_disk_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let free = free_bytes(dir.path()).expect("statvfs of a temporary folder");
+        assert!(free > 0);
+        let hint = disk_full_hint(Path::new("/x"), Some(4096));
+        assert!(
+            hint.contains("/x")
+                && hint.contains("4096 bytes free")
+                && hint.contains("disk is full"),
+            "{hint}"
+        );
+        assert_eq!(disk_full_hint(Path::new("/x"), Some(1 << 30)), "");
+        assert_eq!(disk_full_hint(Path::new("/x"), None), "");
     }
 
     #[test]
