@@ -21,10 +21,10 @@
 //! so the parser's recursion is bounded on any thread's stack; a long flat sum
 //! is no nesting and costs no recursion anywhere.
 //!
-//! exmex, which an earlier front end wrapped, is not used: it has no
-//! three-argument function (`if`), no positions in its errors and no
-//! right-associative `^`, and the tree a real parser builds is what exact
-//! derivatives and the FreeFEM printer need anyway.
+//! Why a parser of our own rather than an expression crate: exmex (MIT/Apache)
+//! has no three-argument function (`if`), no positions in its errors and a
+//! left-associative `^`; evalexpr is AGPL; and the tree a parser builds is
+//! what exact derivatives and the FreeFEM printer need anyway.
 
 use serde::Deserialize;
 use std::fmt;
