@@ -509,6 +509,130 @@ impl DofNumbering {
     }
 }
 
+/// Homogeneous linear ties between free unknowns (deal.II's affine
+/// constraints without inhomogeneity): each tied unknown ("slave") equals a
+/// combination of others, x_s = Σ w_m x_m, which dof elimination cannot
+/// state (u·n = 0 on a symmetry plane of oblique normal n). With T the map
+/// from the independent unknowns y to all free ones, x = T y, the tied
+/// problem is Tᵀ A T y = Tᵀ F, its constraint C T.
+#[derive(Debug, Clone)]
+pub struct LinearTies {
+    /// For each free unknown: None if independent, else its combination of
+    /// independent unknowns (free indices and weights).
+    combination: Vec<Option<Vec<(usize, f64)>>>,
+    /// For each free unknown, its index among the independent ones.
+    independent: Vec<Option<usize>>,
+}
+
+impl LinearTies {
+    /// `ties`: (slave, [(master, weight)]) over `n_free` free unknowns; a
+    /// master is never itself a slave.
+    pub fn new(n_free: usize, ties: Vec<(usize, Vec<(usize, f64)>)>) -> Self {
+        let mut combination = vec![None; n_free];
+        for (slave, masters) in ties {
+            combination[slave] = Some(masters);
+        }
+        let mut independent = vec![None; n_free];
+        let mut k = 0;
+        for (i, c) in combination.iter().enumerate() {
+            if c.is_none() {
+                independent[i] = Some(k);
+                k += 1;
+            }
+        }
+        debug_assert!(combination
+            .iter()
+            .flatten()
+            .flatten()
+            .all(|&(m, _)| independent[m].is_some()));
+        LinearTies {
+            combination,
+            independent,
+        }
+    }
+
+    /// The number of independent unknowns.
+    pub fn n_independent(&self) -> usize {
+        self.independent.iter().flatten().count()
+    }
+
+    /// Row i of T: the independent unknowns free unknown i is made of.
+    pub fn row(&self, i: usize) -> Vec<(usize, f64)> {
+        match (&self.combination[i], self.independent[i]) {
+            (Some(masters), _) => masters
+                .iter()
+                .map(|&(m, w)| (self.independent[m].expect("a master is independent"), w))
+                .collect(),
+            (None, Some(k)) => vec![(k, 1.0)],
+            (None, None) => Vec::new(),
+        }
+    }
+
+    /// The independent index of free unknown i (None for a slave).
+    pub fn independent_index(&self, i: usize) -> Option<usize> {
+        self.independent[i]
+    }
+
+    /// Tᵀ A T for a square A over the free unknowns (whole, not a triangle).
+    pub fn congruence(&self, a: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+        let n = self.n_independent();
+        let rows: Vec<Vec<(usize, f64)>> = (0..a.nrows()).map(|i| self.row(i)).collect();
+        let mut t = Triplets::new(n, n);
+        let m = a.as_ref();
+        for j in 0..m.ncols() {
+            for (i, v) in m.row_idx_of_col(j).zip(m.val_of_col(j)) {
+                for &(p, wp) in &rows[i] {
+                    for &(q, wq) in &rows[j] {
+                        t.push(p, q, wp * v * wq);
+                    }
+                }
+            }
+        }
+        t.into_sparse()
+    }
+
+    /// C T for a matrix C whose columns are the free unknowns.
+    pub fn columns(&self, c: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+        let mut t = Triplets::new(c.nrows(), self.n_independent());
+        let m = c.as_ref();
+        for j in 0..m.ncols() {
+            let row = self.row(j);
+            for (i, v) in m.row_idx_of_col(j).zip(m.val_of_col(j)) {
+                for &(q, w) in &row {
+                    t.push(i, q, v * w);
+                }
+            }
+        }
+        t.into_sparse()
+    }
+
+    /// Tᵀ f for a vector over the free unknowns.
+    pub fn transpose_times(&self, f: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; self.n_independent()];
+        for (i, &fi) in f.iter().enumerate() {
+            for (k, w) in self.row(i) {
+                out[k] += w * fi;
+            }
+        }
+        out
+    }
+
+    /// x = T y: every free unknown from the independent ones.
+    pub fn expand(&self, y: &[f64]) -> Vec<f64> {
+        (0..self.combination.len())
+            .map(|i| self.row(i).iter().map(|&(k, w)| w * y[k]).sum())
+            .collect()
+    }
+
+    /// y from x: the independent unknowns' values.
+    pub fn independent_values(&self, x: &[f64]) -> Vec<f64> {
+        x.iter()
+            .zip(&self.independent)
+            .filter_map(|(v, k)| k.map(|_| *v))
+            .collect()
+    }
+}
+
 /// Keeps the free rows and columns of a matrix. Returns the reduced matrix
 /// and −A_free,fixed · fixed_values, the right-hand-side shift that lifts
 /// non-homogeneous Dirichlet data.

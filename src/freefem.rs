@@ -814,7 +814,17 @@ pub fn psri_fix_spec(scene: &Scene, mesh: &Mesh) -> Result<String> {
             Some(std::slice::from_ref(&b.part)),
         )?
         .expect("one name given")[0];
-        let n = b.normal.map(|a| a.index());
+        if b.normal.is_some_and(|n| n.axis().is_none()) {
+            return Err(scene_error(
+                scene,
+                &format!("{field}.normal"),
+                format!("the FreeFEM twin {PSRI_SCRIPT} fixes fields on whole boundary parts (-fix) and cannot state a symmetry plane of oblique normal"),
+            ));
+        }
+        let n = b
+            .normal
+            .and_then(crate::scene::PlaneNormal::axis)
+            .map(|a| a.index());
         let fields: Vec<usize> = match b.condition {
             BoundaryCondition::Clamped => all.clone().collect(),
             BoundaryCondition::SimplySupported => vec![0, 1, 2],

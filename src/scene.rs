@@ -420,9 +420,9 @@ pub struct BoundarySpec {
     /// Physical name of the boundary part.
     pub part: String,
     pub condition: BoundaryCondition,
-    /// The normal e1, e2 or e3 ("x", "y", "z") of the symmetry plane or of
-    /// the diaphragm's plane.
-    pub normal: Option<Axis>,
+    /// The normal of the symmetry plane or of the diaphragm's plane: e1, e2
+    /// or e3 ("x", "y", "z"), or for a symmetry plane any vector [nx, ny, nz].
+    pub normal: Option<PlaneNormal>,
     /// The fixed fields for `condition = "fixed"` (u1, u2, u3 and r1, r2, r3,
     /// psi or theta1, theta2 by element).
     pub fix: Option<Vec<String>>,
@@ -456,6 +456,47 @@ impl BoundaryCondition {
             BoundaryCondition::Free => "free",
             BoundaryCondition::Fixed => "fixed",
         }
+    }
+}
+
+/// A plane's normal: a Cartesian axis, or any non-zero vector.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum PlaneNormal {
+    Axis(Axis),
+    Vector([f64; 3]),
+}
+
+impl PlaneNormal {
+    /// The axis, also for a vector along one (whose conditions are then the
+    /// axis' own, dof by dof).
+    pub fn axis(self) -> Option<Axis> {
+        match self {
+            PlaneNormal::Axis(a) => Some(a),
+            PlaneNormal::Vector(v) => {
+                let along: Vec<usize> = (0..3).filter(|&c| v[c] != 0.0).collect();
+                match along[..] {
+                    [0] => Some(Axis::X),
+                    [1] => Some(Axis::Y),
+                    [2] => Some(Axis::Z),
+                    _ => None,
+                }
+            }
+        }
+    }
+
+    /// The unit normal.
+    pub fn unit(self) -> [f64; 3] {
+        let v = match self {
+            PlaneNormal::Axis(a) => {
+                let mut e = [0.0; 3];
+                e[a.index()] = 1.0;
+                e
+            }
+            PlaneNormal::Vector(v) => v,
+        };
+        let norm = v.iter().map(|c| c * c).sum::<f64>().sqrt();
+        v.map(|c| c / norm)
     }
 }
 
@@ -1325,11 +1366,31 @@ impl Scene {
                 return Err(self.error(
                     &format!("{field}.normal"),
                     if needs_normal {
-                        format!("`{}`: condition \"{}\" needs the plane's normal: normal = \"x\", \"y\" or \"z\"", b.part, b.condition.name())
+                        format!("`{}`: condition \"{}\" needs the plane's normal: normal = \"x\", \"y\", \"z\" or [nx, ny, nz]", b.part, b.condition.name())
                     } else {
                         format!("`{}`: only \"symmetry\" and \"diaphragm\" take a normal", b.part)
                     },
                 ));
+            }
+            if let Some(PlaneNormal::Vector(v)) = b.normal {
+                let norm = v.iter().map(|c| c * c).sum::<f64>().sqrt();
+                if !v.iter().all(|c| c.is_finite()) || norm <= 1e-100 {
+                    return Err(self.error(
+                        &format!("{field}.normal"),
+                        format!(
+                            "`{}`: the normal must be a finite, non-zero vector, got {v:?}",
+                            b.part
+                        ),
+                    ));
+                }
+                if b.condition == BoundaryCondition::Diaphragm
+                    && b.normal.and_then(PlaneNormal::axis).is_none()
+                {
+                    return Err(self.error(
+                        &format!("{field}.normal"),
+                        format!("`{}`: a diaphragm's normal is \"x\", \"y\" or \"z\" (an oblique plane takes condition = \"symmetry\")", b.part),
+                    ));
+                }
             }
             if (b.condition == BoundaryCondition::Fixed) != b.fix.is_some() {
                 return Err(self.error(

@@ -20,8 +20,9 @@ use super::forms::{
     ShellElementKind, ShellLayout, SurfaceLoad,
 };
 use super::geometry::{obstacle_function, Chart, Material};
-use crate::assembly::{quad_points, quadrature_points, DofNumbering};
+use crate::assembly::{quad_points, quadrature_points, DofNumbering, LinearTies};
 use crate::error::{Error, Result};
+use crate::linalg::{InteriorGroups, MatrixKind};
 use crate::mesh::{Mesh, PointLocator};
 use crate::models::{
     check_obstacle_against_boundary_values, contact_fields, named_boundary_tags, named_dofs,
@@ -31,8 +32,8 @@ use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::plot;
 use crate::quadrature::TriangleRule;
 use crate::scene::{
-    BoundaryCondition, BoundarySpec, ContactMultiplier, ElementPair, Expression, PlotKind, Scene,
-    ShellSpec,
+    BoundaryCondition, BoundarySpec, ContactMultiplier, ElementPair, Expression, PlaneNormal,
+    PlotKind, Scene, ShellSpec,
 };
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -72,6 +73,9 @@ pub struct NaghdiSystem<'m> {
     element: ElementPair,
     /// The point where u is recorded (`output.probe`).
     probe: Option<[f64; 2]>,
+    /// The ties of oblique symmetry planes: the solvers' unknowns are the
+    /// independent ones (x_free = T y).
+    ties: Option<LinearTies>,
 }
 
 /// The boundary conditions of a scene, resolved to tags: `shell.clamped`
@@ -148,6 +152,123 @@ fn constraint_pinned_vertices(
         .collect()
 }
 
+/// The problem over the independent unknowns of `ties` (Tᵀ A T, Tᵀ F; the
+/// tied unknowns are primal, so n_primal drops by their number; every
+/// interior group's unknowns are independent: bubbles vanish on the boundary).
+fn tie_unknowns(problem: &mut ContactProblem, ties: &LinearTies) {
+    let tied_primal = (0..problem.n_primal)
+        .filter(|&i| ties.independent_index(i).is_none())
+        .count();
+    problem.matrix = ties.congruence(&problem.matrix);
+    problem.rhs = ties.transpose_times(&problem.rhs);
+    problem.n_primal -= tied_primal;
+    problem.kind = match problem.kind {
+        MatrixKind::SymmetricSaddle { .. } => MatrixKind::SymmetricSaddle {
+            n_primal: problem.n_primal,
+        },
+        kind => kind,
+    };
+    problem.interior = problem.interior.as_ref().map(|groups| {
+        InteriorGroups::from_groups((0..groups.len()).map(|g| {
+            groups
+                .group(g)
+                .iter()
+                .filter_map(|&i| ties.independent_index(i))
+                .collect()
+        }))
+    });
+}
+
+/// The ties of the symmetry planes with an oblique unit normal n, node by
+/// node on their parts: u·n = 0, and r·n = 0 (Cartesian r: Σ n_c r_c;
+/// tangent rotations: Σ θ^β a_β·n at the node's point). Of each relation the
+/// free component with the largest coefficient is tied to the others. Two
+/// relations at one node (oblique planes meeting) are refused.
+fn oblique_symmetry_ties(
+    mesh: &Mesh,
+    scene: &Scene,
+    layout: &ShellLayout,
+    chart: &Chart,
+    conditions: &[(Option<Vec<i32>>, BoundarySpec)],
+    numbering: &DofNumbering,
+) -> Result<Option<LinearTies>> {
+    let mut ties: Vec<(usize, Vec<(usize, f64)>)> = Vec::new();
+    let mut tied = vec![false; numbering.n_free()];
+    for (tags, b) in conditions {
+        let Some(normal) = b.normal.filter(|n| n.axis().is_none()) else {
+            continue;
+        };
+        if b.condition != BoundaryCondition::Symmetry {
+            continue;
+        }
+        let n = Vector3::from(normal.unit());
+        let groups: Vec<Vec<(usize, FieldRole)>> = [
+            (0..3).map(FieldRole::Displacement).collect::<Vec<_>>(),
+            (0..3).map(FieldRole::CartesianRotation).collect(),
+            (0..2).map(FieldRole::TangentRotation).collect(),
+        ]
+        .into_iter()
+        .map(|roles| {
+            roles
+                .into_iter()
+                .filter_map(|r| layout.field_of(r).map(|f| (f, r)))
+                .collect::<Vec<_>>()
+        })
+        .filter(|g| !g.is_empty())
+        .collect();
+        for group in groups {
+            let element = layout.fields[group[0].0].element;
+            let mask = Space::new(mesh, element).boundary_dof_mask(tags.as_deref());
+            for d in (0..mask.len()).filter(|&d| mask[d]) {
+                let x = dof_point(mesh, element, d);
+                let p = chart.at(x);
+                let terms: Vec<(usize, f64)> = group
+                    .iter()
+                    .filter_map(|&(f, role)| {
+                        let c = match role {
+                            FieldRole::TangentRotation(be) => p.a(be).dot(&n),
+                            FieldRole::Displacement(c) | FieldRole::CartesianRotation(c) => n[c],
+                            FieldRole::TangencyMultiplier => 0.0,
+                        };
+                        numbering.free_index[layout.fields[f].offset + d].map(|i| (i, c))
+                    })
+                    .collect();
+                let scale = terms.iter().fold(0.0f64, |m, t| m.max(t.1.abs()));
+                if scale <= 1e-12 {
+                    continue; // nothing free moves across the plane here
+                }
+                let &(slave, c_slave) = terms
+                    .iter()
+                    .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                    .expect("a term");
+                let masters: Vec<(usize, f64)> = terms
+                    .iter()
+                    .filter(|t| t.0 != slave && t.1.abs() > 1e-14 * scale)
+                    .map(|&(i, c)| (i, -c / c_slave))
+                    .collect();
+                if std::iter::once(slave)
+                    .chain(masters.iter().map(|m| m.0))
+                    .any(|i| tied[i])
+                {
+                    return Err(Error::Scene {
+                        file: scene.source.clone(),
+                        field: "shell.boundary.normal".into(),
+                        reason: format!(
+                            "part `{}`: at ({:.6}, {:.6}) two symmetry planes of oblique normal meet; a node takes one oblique plane",
+                            b.part, x[0], x[1]
+                        ),
+                    });
+                }
+                for i in std::iter::once(slave).chain(masters.iter().map(|m| m.0)) {
+                    tied[i] = true;
+                }
+                ties.push((slave, masters));
+            }
+        }
+    }
+    Ok((!ties.is_empty()).then(|| LinearTies::new(numbering.n_free(), ties)))
+}
+
 /// The fixed-dof mask of the boundary conditions (docs/shell-benchmarks.md):
 /// clamped: u = r = 0 (and ψ = 0 with the thesis element); simply
 /// supported: u = 0; diaphragm with normal e_n: u_c = 0 for c ≠ n; symmetry
@@ -164,7 +285,8 @@ fn fixed_mask(
     let field_of = |role| layout.field_of(role);
     for (tags, b) in conditions {
         let tags = tags.as_deref();
-        let n = b.normal.map(|a| a.index());
+        let oblique = b.normal.is_some_and(|n| n.axis().is_none());
+        let n = b.normal.and_then(PlaneNormal::axis).map(|a| a.index());
         let fields: Vec<usize> = match b.condition {
             BoundaryCondition::Clamped => (0..layout.fields.len()).collect(),
             BoundaryCondition::SimplySupported => (0..3)
@@ -174,6 +296,8 @@ fn fixed_mask(
                 .filter(|&c| Some(c) != n)
                 .filter_map(|c| field_of(FieldRole::Displacement(c)))
                 .collect(),
+            // An oblique plane ties components instead (`oblique_symmetry_ties`).
+            BoundaryCondition::Symmetry if oblique => Vec::new(),
             BoundaryCondition::Symmetry => {
                 let n = n.expect("validated: symmetry has a normal");
                 let mut f = vec![field_of(FieldRole::Displacement(n)).expect("u fields")];
@@ -337,6 +461,7 @@ impl<'m> NaghdiSystem<'m> {
             }
         }
         let numbering = DofNumbering::from_fixed_mask(&fixed);
+        let ties = oblique_symmetry_ties(mesh, scene, &layout, &chart, &conditions, &numbering)?;
         let clamped_tags: Vec<Option<Vec<i32>>> = conditions
             .iter()
             .filter(|(_, b)| b.condition == BoundaryCondition::Clamped)
@@ -516,11 +641,14 @@ impl<'m> NaghdiSystem<'m> {
             simulated,
             element: scene.element,
             probe: scene.output.probe,
+            ties,
         })
     }
 
     /// The full coefficient vector (all blocks, fixed dofs = 0, ψ unscaled).
     pub fn full_coefficients(&self, x: &[f64]) -> Vec<f64> {
+        let free = self.ties.as_ref().map(|t| t.expand(x));
+        let x = free.as_deref().unwrap_or(x);
         let mut full = self.numbering.extend(x, &vec![0.0; self.layout.n_total()]);
         if let Some(psi) = self.layout.psi() {
             let sigma = self.tangency_scale.get();
@@ -615,6 +743,9 @@ impl ModelSystem for NaghdiSystem<'_> {
             add_point_load(self.mesh, &self.layout, t, l, force, &mut f_full);
         }
         let mut problem = restrict_shell(&self.layout, a, &f_full, &self.numbering);
+        if let Some(ties) = &self.ties {
+            tie_unknowns(&mut problem, ties);
+        }
         if problem.n_primal < problem.n() {
             // ψ present: balance its rows with K's (needed for large ρ).
             let sigma = balanced_tangency_scale(&problem);
@@ -634,6 +765,9 @@ impl ModelSystem for NaghdiSystem<'_> {
                     &self.numbering,
                 ),
             });
+            if let (Some(ties), Some(c)) = (&self.ties, problem.constraint.as_mut()) {
+                c.matrix = ties.columns(&c.matrix);
+            }
         }
         Ok(problem)
     }
@@ -655,7 +789,14 @@ impl ModelSystem for NaghdiSystem<'_> {
             let (dofs, n) = Space::new(self.mesh, field.element).element_dofs(t);
             for k in 0..n {
                 if let Some(i) = self.numbering.free_index[field.offset + dofs[k]] {
-                    terms.push((i, weight * basis.values[k]));
+                    match &self.ties {
+                        Some(ties) => terms.extend(
+                            ties.row(i)
+                                .into_iter()
+                                .map(|(j, t)| (j, t * weight * basis.values[k])),
+                        ),
+                        None => terms.push((i, weight * basis.values[k])),
+                    }
                 }
             }
         }
@@ -835,7 +976,11 @@ impl ModelSystem for NaghdiSystem<'_> {
                 .iter_mut()
                 .for_each(|v| *v /= sigma);
         }
-        Ok(self.numbering.restrict(&full))
+        let free = self.numbering.restrict(&full);
+        Ok(match &self.ties {
+            Some(ties) => ties.independent_values(&free),
+            None => free,
+        })
     }
 
     /// The residual estimator of docs/formulation.md §8 (`naghdi::estimator`).
