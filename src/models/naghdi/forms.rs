@@ -89,11 +89,6 @@ impl ShellElementKind {
             ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => Element::P1,
         }
     }
-
-    /// Whether the rotation is θ^β a_β (tangent by construction, no ψ).
-    pub fn has_tangent_rotations(self) -> bool {
-        self != ShellElementKind::P1bP0
-    }
 }
 
 /// How one scalar field enters the shell's unknowns.

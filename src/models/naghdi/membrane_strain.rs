@@ -5,8 +5,8 @@
 //! local shape function is replaced by a symmetric tensor field that is
 //! linear on T, Σ_v λ_v S_v:
 //!
-//! * for the six P2 shape functions, the Regge interpolant of lowest order
-//!   above zero (Neunteufel and Schöberl, *Avoiding membrane locking with
+//! * for the six P2 shape functions, the Regge interpolant of degree 1
+//!   (Neunteufel and Schöberl, *Avoiding membrane locking with
 //!   Regge interpolation*, Comput. Methods Appl. Mech. Engrg. 373 (2021)
 //!   113524): on each edge E with tangent t the moments ∫_E tᵀγt q for
 //!   q ∈ P1(E), and ∫_T γ. The tangential–tangential moments are shared by
@@ -46,37 +46,32 @@ pub struct MembraneInterpolant {
 
 impl MembraneInterpolant {
     pub fn new(g: &TriangleGeometry, fields: &[&ShellField], chart: &Chart) -> Self {
-        let regge = regge_functionals(g);
-        let projection = projection_functionals();
-        let regge_lu = moment_matrix(&regge).lu();
-        let projection_lu = moment_matrix(&projection).lu();
-        let mut coefficients = Vec::new();
-        for field in fields {
-            let n = field.element.n_local();
-            for k in 0..n {
-                // The bubble is the last local shape function (space.rs).
-                let bubble = field.element == Element::P2Bubble && k == n - 1;
-                let (functionals, lu) = if bubble {
-                    (&projection, &projection_lu)
+        // The bubble is the last local shape function of P2⊕B3 (space.rs).
+        let bubble: Vec<bool> = fields
+            .iter()
+            .flat_map(|f| {
+                let n = f.element.n_local();
+                (0..n).map(move |k| f.element == Element::P2Bubble && k == n - 1)
+            })
+            .collect();
+        let (regge_rows, projection_rows) = (regge_functionals(g), projection_functionals());
+        let regge = moments(g, fields, chart, &regge_rows);
+        let projection = moments(g, fields, chart, &projection_rows);
+        let regge_lu = moment_matrix(&regge_rows).lu();
+        let projection_lu = moment_matrix(&projection_rows).lu();
+        let coefficients = bubble
+            .iter()
+            .enumerate()
+            .map(|(i, &b)| {
+                let (lu, m) = if b {
+                    (&projection_lu, &projection[i])
                 } else {
-                    (&regge, &regge_lu)
+                    (&regge_lu, &regge[i])
                 };
-                let mut moments = Moments::zeros();
-                for (row, functional) in functionals.iter().enumerate() {
-                    for (lambda, w) in functional {
-                        let p = chart.at(g.point(*lambda));
-                        let basis = field.element.basis(*lambda);
-                        let grad = g.gradient(basis.d_lambda[k]);
-                        let e = field_strains(&p, field.role, basis.values[k], grad);
-                        moments[row] += (0..3).map(|c| w[c] * e[GAMMA + c]).sum::<f64>();
-                    }
-                }
-                coefficients.push(
-                    lu.solve(&moments)
-                        .expect("the moment matrices of a triangle are regular"),
-                );
-            }
-        }
+                lu.solve(m)
+                    .expect("the moment matrices of a triangle are regular")
+            })
+            .collect();
         MembraneInterpolant { coefficients }
     }
 
@@ -86,6 +81,34 @@ impl MembraneInterpolant {
         let s = &self.coefficients[i];
         std::array::from_fn(|c| (0..3).map(|v| lambda[v] * s[3 * v + c]).sum())
     }
+}
+
+/// The functionals applied to the membrane strain of every local shape
+/// function (the chart evaluated once per point).
+fn moments(
+    g: &TriangleGeometry,
+    fields: &[&ShellField],
+    chart: &Chart,
+    functionals: &[Functional],
+) -> Vec<Moments> {
+    let n: usize = fields.iter().map(|f| f.element.n_local()).sum();
+    let mut m = vec![Moments::zeros(); n];
+    for (row, functional) in functionals.iter().enumerate() {
+        for (lambda, w) in functional {
+            let p = chart.at(g.point(*lambda));
+            let mut i = 0;
+            for field in fields {
+                let basis = field.element.basis(*lambda);
+                for k in 0..basis.n {
+                    let grad = g.gradient(basis.d_lambda[k]);
+                    let e = field_strains(&p, field.role, basis.values[k], grad);
+                    m[i][row] += (0..3).map(|c| w[c] * e[GAMMA + c]).sum::<f64>();
+                    i += 1;
+                }
+            }
+        }
+    }
+    m
 }
 
 /// The Regge degrees of freedom: per edge (opposite vertex k, from vertex
