@@ -341,6 +341,13 @@ pub fn script_args(
 ) -> Result<Vec<String>> {
     let f = |x: f64| format!("{x:e}");
     let mut a: Vec<String> = vec!["-mesh".into(), msh.display().to_string()];
+    if scene.element == ElementPair::P2bRegge {
+        return Err(scene_error(
+            scene,
+            "element",
+            "the FreeFEM twins are p1b-p0 and p2b-psri; p2b-regge has none",
+        ));
+    }
     if scene.mesh.dirichlet.is_some() {
         return Err(scene_error(
             scene,

@@ -76,6 +76,11 @@ pub enum ElementPair {
     /// membrane and shear energies; P1 contact multipliers.
     #[serde(rename = "p2b-psri")]
     P2bPsri,
+    /// Shell only: the spaces, shear and contact of `p2b-psri`, the membrane
+    /// strain interpolated (Regge on P2, L² projection of the bubble) and
+    /// fully integrated.
+    #[serde(rename = "p2b-regge")]
+    P2bRegge,
 }
 
 impl ElementPair {
@@ -84,7 +89,13 @@ impl ElementPair {
             ElementPair::P1bP0 => "p1b-p0",
             ElementPair::P2P1 => "p2-p1",
             ElementPair::P2bPsri => "p2b-psri",
+            ElementPair::P2bRegge => "p2b-regge",
         }
+    }
+
+    /// The locking-free shell elements (tangent rotations, P1 multipliers).
+    pub fn is_p2b_shell(self) -> bool {
+        matches!(self, ElementPair::P2bPsri | ElementPair::P2bRegge)
     }
 }
 
@@ -1226,10 +1237,13 @@ impl Scene {
         if self.shell.is_some() {
             return Err(self.error("shell", "a [shell] table needs model = \"naghdi\""));
         }
-        if self.element == ElementPair::P2bPsri {
+        if self.element.is_p2b_shell() {
             return Err(self.error(
                 "element",
-                "\"p2b-psri\" is a shell element; the membrane takes \"p1b-p0\" or \"p2-p1\"",
+                format!(
+                    "\"{}\" is a shell element; the membrane takes \"p1b-p0\" or \"p2-p1\"",
+                    self.element.name()
+                ),
             ));
         }
         if let Some(o) = &self.obstacle {
@@ -1333,7 +1347,7 @@ impl Scene {
             }
             (ElementPair::P2P1, _) => return Err(self.error(
                 "element",
-                "the shell elements are \"p1b-p0\" (the thesis') and \"p2b-psri\" (locking-free)",
+                "the shell elements are \"p1b-p0\" (the thesis'), \"p2b-psri\" and \"p2b-regge\" (locking-free)",
             )),
             _ => {}
         }
@@ -1480,10 +1494,13 @@ impl Scene {
                     "shape = \"rigid-surface\" needs height = \"<expression in x, y, r>\" (the body fills z < height)",
                 ));
             }
-            if self.element == ElementPair::P2bPsri && o.multiplier == Some(ContactMultiplier::P0) {
+            if self.element.is_p2b_shell() && o.multiplier == Some(ContactMultiplier::P0) {
                 return Err(self.error(
                     "obstacle.multiplier",
-                    "\"p2b-psri\" has P1 contact multipliers only (multiplier = \"p1\"); \"p0\" goes with element = \"p1b-p0\"",
+                    format!(
+                        "\"{}\" has P1 contact multipliers only (multiplier = \"p1\"); \"p0\" goes with element = \"p1b-p0\"",
+                        self.element.name()
+                    ),
                 ));
             }
         }

@@ -53,7 +53,9 @@ impl<'m> MembraneSystem<'m> {
         let (u_element, lambda_element) = match scene.element {
             ElementPair::P1bP0 => (Element::P1Bubble, Element::P0),
             ElementPair::P2P1 => (Element::P2, Element::P1),
-            ElementPair::P2bPsri => unreachable!("validated: a shell element"),
+            ElementPair::P2bPsri | ElementPair::P2bRegge => {
+                unreachable!("validated: a shell element")
+            }
         };
         let u_space = Space::new(mesh, u_element);
         let tags = named_boundary_tags(
@@ -258,7 +260,7 @@ impl<'m> MembraneSystem<'m> {
                     .collect();
                 (g_vec, areas)
             }
-            ElementPair::P2P1 | ElementPair::P2bPsri => {
+            ElementPair::P2P1 | ElementPair::P2bPsri | ElementPair::P2bRegge => {
                 // g_i = ∫ φ μ_i; w_i = lumped P1 mass (docs/formulation.md §1: the Riesz map
                 // whose projection is a nodal max).
                 let lam = &self.lambda_space;

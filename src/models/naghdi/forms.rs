@@ -12,7 +12,10 @@
 //!   definite); the membrane and shear energies by partial selective reduced
 //!   integration (Arnold–Brezzi, as FEniCS-Shells): a weight
 //!   α_T = min(1, ε²/h_T²) on the full rule and 1 − α_T on the 3-point
-//!   interior rule of degree 2; P1 contact multipliers.
+//!   interior rule of degree 2; P1 contact multipliers;
+//! * `p2b-regge`: the spaces, shear and contact of `p2b-psri`, with the
+//!   membrane strain interpolated ([`MembraneInterpolant`]) and fully
+//!   integrated, which has no zero-energy membrane mode.
 //!
 //! The unknowns are scalar fields in blocks ([`ShellLayout`]): the global index
 //! of scalar dof d of field f is `fields[f].offset + d`.
@@ -28,6 +31,7 @@
 //! [`scale_tangency_multiplier`] rebalances the ψ block for large ρ.
 
 use super::geometry::{obstacle_function, Chart, Material, SurfacePoint};
+use super::membrane_strain::MembraneInterpolant;
 use crate::assembly::{eliminate, quad_points, DofNumbering, ElementMatrix, Triplets};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
@@ -62,7 +66,7 @@ pub type StrainVector = [f64; N_STRAINS];
 /// The symmetric index pairs (α, β) of the strain components 11, 22, 12.
 const PAIRS: [[usize; 2]; 3] = [[0, 0], [1, 1], [0, 1]];
 
-/// The two shell discretisations (scene `element`).
+/// The shell discretisations (scene `element`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ShellElementKind {
     /// The thesis' element: (P1⊕B3)⁶ × P1⊕B3 (ψ), P0 contact multipliers.
@@ -70,6 +74,10 @@ pub enum ShellElementKind {
     /// The locking-free element: (P2⊕B3)⁵ (u and two tangent rotation
     /// components), PSRI, P1 contact multipliers.
     P2bPsri,
+    /// The spaces of `P2bPsri`, PSRI on the shear only, the membrane strain
+    /// interpolated (Regge on P2, L² projection of the bubble) and fully
+    /// integrated.
+    P2bRegge,
 }
 
 impl ShellElementKind {
@@ -78,7 +86,7 @@ impl ShellElementKind {
     pub fn multiplier_element(self) -> Element {
         match self {
             ShellElementKind::P1bP0 => Element::P0,
-            ShellElementKind::P2bPsri => Element::P1,
+            ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => Element::P1,
         }
     }
 }
@@ -141,7 +149,7 @@ impl ShellLayout {
                     (name, role, Element::P1Bubble)
                 })
                 .collect(),
-            ShellElementKind::P2bPsri => vec![
+            ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => vec![
                 ("u1", Displacement(0), Element::P2Bubble),
                 ("u2", Displacement(1), Element::P2Bubble),
                 ("u3", Displacement(2), Element::P2Bubble),
@@ -434,7 +442,8 @@ pub fn psri_weight(mesh: &Mesh, t: usize, thickness: f64) -> f64 {
 /// The quadrature passes of the layout's element: one pass of Radon's rule
 /// (thesis), or the PSRI pair with α = [`psri_weight`] of the triangle (full
 /// rule: bending and α (membrane + shear); the interior 3-point rule of
-/// degree 2: (1 − α)(membrane + shear)).
+/// degree 2: (1 − α)(membrane + shear)); for `p2b-regge` the pair holds the
+/// shear only and the full rule the whole (interpolated) membrane energy.
 pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPass> {
     match layout.kind {
         ShellElementKind::P1bP0 => vec![IntegrationPass {
@@ -442,12 +451,17 @@ pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPa
             factors: None,
             full: true,
         }],
-        ShellElementKind::P2bPsri => {
+        ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => {
+            let membrane = if layout.kind == ShellElementKind::P2bRegge {
+                1.0
+            } else {
+                alpha
+            };
             vec![
                 IntegrationPass {
                     rule: TriangleRule::exact_for(5),
                     factors: Some(GroupFactors {
-                        membrane: alpha,
+                        membrane,
                         bending: 1.0,
                         shear: alpha,
                     }),
@@ -456,7 +470,7 @@ pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPa
                 IntegrationPass {
                     rule: TriangleRule::exact_for(2),
                     factors: Some(GroupFactors {
-                        membrane: 1.0 - alpha,
+                        membrane: 1.0 - membrane,
                         bending: 0.0,
                         shear: 1.0 - alpha,
                     }),
@@ -541,6 +555,8 @@ pub fn element_matrices(
         load: vec![0.0; n_u],
     };
     let mut e = vec![[0.0; N_STRAINS]; n_u];
+    let membrane = (layout.kind == ShellElementKind::P2bRegge)
+        .then(|| MembraneInterpolant::new(&g, &u_fields, chart));
     for pass in passes {
         for q in quad_points(&g, t, &pass.rule) {
             let p = chart.at(q.x);
@@ -560,6 +576,9 @@ pub fn element_matrices(
                 for k in 0..basis.n {
                     let grad = g.gradient(basis.d_lambda[k]);
                     e[i] = field_strains(&p, field.role, basis.values[k], grad);
+                    if let Some(m) = &membrane {
+                        e[i][GAMMA..GAMMA + 3].copy_from_slice(&m.strain(i, q.lambda));
+                    }
                     if pass.full {
                         if let FieldRole::Displacement(c) = field.role {
                             el.load[i] += q.weight * force[c] * basis.values[k] * p.sqrt_a;
@@ -1163,6 +1182,7 @@ mod tests {
         for (kind, mass) in [
             (ShellElementKind::P1bP0, 1.45),
             (ShellElementKind::P2bPsri, 1.45),
+            (ShellElementKind::P2bRegge, 1.45),
         ] {
             let layout = ShellLayout::for_element(&mesh, kind);
             let passes = integration_passes(&layout, psri_weight(&mesh, 0, 0.8));

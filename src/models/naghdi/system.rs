@@ -146,7 +146,7 @@ fn constraint_pinned_vertices(
             });
             match layout.kind {
                 ShellElementKind::P1bP0 => cartesian_pinned,
-                ShellElementKind::P2bPsri => tangent_pinned,
+                ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => tangent_pinned,
             }
         })
         .collect()
@@ -429,6 +429,7 @@ impl<'m> NaghdiSystem<'m> {
         let material = Material::of(shell);
         let kind = match scene.element {
             ElementPair::P2bPsri => ShellElementKind::P2bPsri,
+            ElementPair::P2bRegge => ShellElementKind::P2bRegge,
             _ => ShellElementKind::P1bP0,
         };
         let mut layout = ShellLayout::for_element(mesh, kind);
@@ -566,6 +567,9 @@ impl<'m> NaghdiSystem<'m> {
         }
         simulated.push(match (kind, plate_reduction) {
             (ShellElementKind::P2bPsri, _) => "tangent-rotations,reduced-integration".into(),
+            (ShellElementKind::P2bRegge, _) => {
+                "tangent-rotations,interpolated-membrane,reduced-integration".into()
+            }
             (_, true) => "tangency-eliminated".into(),
             (_, false) => "tangency-multiplier".into(),
         });
@@ -626,7 +630,7 @@ impl<'m> NaghdiSystem<'m> {
             material,
             rho: match kind {
                 ShellElementKind::P1bP0 => shell.rho.expect("validated: p1b-p0 has rho"),
-                ShellElementKind::P2bPsri => 0.0,
+                ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => 0.0,
             },
             layout,
             numbering,
@@ -667,7 +671,9 @@ impl<'m> NaghdiSystem<'m> {
             ShellElementKind::P1bP0 => {
                 vec![("u", vec![0, 1, 2]), ("r", vec![3, 4, 5]), ("psi", vec![6])]
             }
-            ShellElementKind::P2bPsri => vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])],
+            ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => {
+                vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])]
+            }
         }
     }
 
