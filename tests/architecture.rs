@@ -173,6 +173,7 @@ fn models_run_no_solver_and_read_no_files() {
             "assembly",
             "linalg",
             "scene",
+            "expression",
             "solvers",
             "output",
             "plot",
