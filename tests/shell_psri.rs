@@ -37,20 +37,27 @@ fn plate_ratio(n: usize, thickness: f64) -> f64 {
 const PSRI: &str = "p2b-psri";
 const REGGE: &str = "p2b-regge";
 
-fn plate_ratio_with(element: &str, n: usize, thickness: f64) -> f64 {
+/// The clamped plate with `element`, n × n, thickness ε and the load `f`,
+/// recording u at the centre.
+fn plate_run(element: &str, n: usize, thickness: f64, f: [f64; 3]) -> RunSummary {
     let dir = tempfile::tempdir().unwrap();
-    let q = 0.25 * (thickness / 0.8f64).powi(3);
-    let s = run(
+    run(
         PLATE,
         dir.path(),
         &[
             format!("element={element}"),
             format!("mesh.n={n}"),
             format!("shell.thickness={thickness}"),
-            format!("load.f=[0.0, 0.0, {}]", -q),
+            format!("load.f=[{}, {}, {}]", f[0], f[1], f[2]),
+            "output.probe=[0.0, 0.0]".into(),
             "output.plots=[]".into(),
         ],
-    );
+    )
+}
+
+fn plate_ratio_with(element: &str, n: usize, thickness: f64) -> f64 {
+    let q = 0.25 * (thickness / 0.8f64).powi(3);
+    let s = plate_run(element, n, thickness, [0.0, 0.0, -q]);
     let d = 2.85e4 * thickness.powi(3) / (12.0 * (1.0 - 0.16));
     let kirchhoff = 0.00126532 * q * 100f64.powi(4) / d;
     -attr(&s, "u3_min") / kirchhoff
@@ -223,19 +230,7 @@ fn hypar_ratio(element: &str, n: usize, t: f64, reference: f64) -> f64 {
 /// centre u1 is 4.3321 (FreeFEM P2, converged) at ε = 0.008 and scales as
 /// 1/ε. Centre u1 over it.
 fn in_plane_ratio(element: &str, n: usize, thickness: f64) -> f64 {
-    let dir = tempfile::tempdir().unwrap();
-    let s = run(
-        PLATE,
-        dir.path(),
-        &[
-            format!("element={element}"),
-            format!("mesh.n={n}"),
-            format!("shell.thickness={thickness}"),
-            "load.f=[1.0, 0.0, 0.0]".into(),
-            "output.probe=[0.0, 0.0]".into(),
-            "output.plots=[]".into(),
-        ],
-    );
+    let s = plate_run(element, n, thickness, [1.0, 0.0, 0.0]);
     attr(&s, "probe_u1") / (4.3321 * 0.008 / thickness)
 }
 
