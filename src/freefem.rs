@@ -1015,6 +1015,12 @@ pub fn run_freefem_scene(
         .map_err(|e| Error::output(std::env::temp_dir(), format!("cannot create a folder: {e}")))?;
     let _on_signal = crate::output::transaction::RemoveOnSignal::new(work.path());
     let prefix = work.path().join("ff");
+    // A user's MSH 4 file reaches gmshload as gmsh's MSH 2.2 conversion, the
+    // file the Rust side read.
+    let msh = match &scene.mesh.file {
+        Some(_) => crate::pipeline::msh22_of(&msh, work.path())?,
+        None => msh,
+    };
     let args = script_args(scene, &mesh, &msh, plan.as_ref(), &prefix)?;
     let run_script = match scene_functions(scene) {
         None => script.clone(),

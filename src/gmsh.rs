@@ -32,7 +32,38 @@ const LOG_LINES: usize = 20;
 /// Mesh `geo` in 2-D into `out_msh` (MSH 2.2 ASCII), setting each
 /// `(NAME, VALUE)` of `params` with `-setnumber NAME VALUE`.
 pub fn run_gmsh(geo: &Path, out_msh: &Path, params: &[(String, f64)]) -> Result<()> {
-    run_gmsh_with(OsStr::new(GMSH), geo, out_msh, params, None)
+    run_gmsh_with(OsStr::new(GMSH), geo, out_msh, &Job::Mesh(params, None))
+}
+
+/// What gmsh is run for.
+enum Job<'a> {
+    /// Mesh a `.geo` in 2D with `-setnumber` parameters and an optional
+    /// background size view.
+    Mesh(&'a [(String, f64)], Option<&'a Path>),
+    /// Convert a mesh file to MSH 2.2 (`-2` would remesh it).
+    Convert,
+}
+
+/// The major MSH version a mesh file declares in its `$MeshFormat` header
+/// (text even in binary files); None when the file has no such header.
+pub fn msh_major_version(path: &Path) -> Option<u32> {
+    use std::io::Read as _;
+    let mut head = [0u8; 256];
+    let n = std::fs::File::open(path).ok()?.read(&mut head).ok()?;
+    let text = String::from_utf8_lossy(&head[..n]);
+    let mut lines = text.lines().map(str::trim).skip_while(|l| l.is_empty());
+    if lines.next()? != "$MeshFormat" {
+        return None;
+    }
+    lines.next()?.split(['.', ' ']).next()?.parse().ok()
+}
+
+/// A copy of the mesh file `input` (any format gmsh reads: MSH 4.1, its
+/// default, ASCII or binary) as MSH 2.2 ASCII at `out_msh`, written by gmsh
+/// itself (`-save -format msh22`), checked and renamed into place like a
+/// meshing run's output.
+pub fn convert_to_msh22(input: &Path, out_msh: &Path) -> Result<()> {
+    run_gmsh_with(OsStr::new(GMSH), input, out_msh, &Job::Convert)
 }
 
 /// As [`run_gmsh`], with the sizes of a background mesh (`-bgm`: a `.pos`
@@ -43,7 +74,12 @@ pub fn run_gmsh_sized(
     params: &[(String, f64)],
     background: &Path,
 ) -> Result<()> {
-    run_gmsh_with(OsStr::new(GMSH), geo, out_msh, params, Some(background))
+    run_gmsh_with(
+        OsStr::new(GMSH),
+        geo,
+        out_msh,
+        &Job::Mesh(params, Some(background)),
+    )
 }
 
 /// The version gmsh reports (`gmsh --version`), e.g. "4.8.4"; None if gmsh
@@ -85,13 +121,11 @@ pub fn gmsh_args(geo: &Path, out: &Path, params: &[(String, f64)]) -> Vec<std::f
     args
 }
 
-fn run_gmsh_with(
-    program: &OsStr,
-    geo: &Path,
-    out_msh: &Path,
-    params: &[(String, f64)],
-    background: Option<&Path>,
-) -> Result<()> {
+fn run_gmsh_with(program: &OsStr, geo: &Path, out_msh: &Path, job: &Job) -> Result<()> {
+    let (params, background) = match *job {
+        Job::Mesh(params, background) => (params, background),
+        Job::Convert => (&[][..], None),
+    };
     let err = |reason: String| Error::Gmsh {
         geo: geo.to_path_buf(),
         reason,
@@ -151,7 +185,17 @@ fn run_gmsh_with(
     let tmp = tmp_dir.path().join(file_name);
 
     let mut command = Command::new(program);
-    command.args(gmsh_args(geo, &tmp, params));
+    match job {
+        Job::Convert => {
+            command
+                .arg(geo)
+                .args(["-save", "-format", "msh22", "-v", "2", "-nopopup", "-o"]);
+            command.arg(&tmp);
+        }
+        Job::Mesh(..) => {
+            command.args(gmsh_args(geo, &tmp, params));
+        }
+    }
     if let Some(b) = background {
         command.arg("-bgm").arg(b);
     }
@@ -323,8 +367,7 @@ mod tests {
             OsStr::new("gmsh-does-not-exist-8f3a"),
             &geo,
             &out,
-            &[("n".into(), 4.0)],
-            None,
+            &Job::Mesh(&[("n".into(), 4.0)], None),
         )
         .unwrap_err();
         assert_eq!(reason(e), GMSH_NOT_FOUND);

@@ -262,7 +262,7 @@ const PHASE_END_PREFIX: &str = "seconds_at_end_of_";
 /// (writing `msh_path`).
 pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     let mesh = match &scene.mesh.file {
-        Some(file) => Mesh::read_msh(&scene.resolve(file))?,
+        Some(file) => read_mesh_file(&scene.resolve(file))?,
         None => {
             if let Some(e) = guards::estimate_before_meshing(scene) {
                 guards::check_memory(scene, &e, "before meshing")?;
@@ -273,6 +273,38 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
     guards::check_mesh_scale(&mesh)?;
     let e = guards::estimate(scene, mesh.n_triangles() as f64);
     guards::check_memory(scene, &e, &format!("the mesh {}", mesh.source.display()))?;
+    Ok(mesh)
+}
+
+/// A user's mesh file as MSH 2.2 ASCII, the format the reader and FreeFEM's
+/// `gmshload` take: the file itself, or, for MSH 4 (gmsh's default format,
+/// ASCII or binary), its conversion by gmsh into `folder`.
+pub fn msh22_of(file: &Path, folder: &Path) -> Result<PathBuf> {
+    match crate::gmsh::msh_major_version(file) {
+        Some(v) if v >= 4 => {
+            let name = file.file_name().unwrap_or(std::ffi::OsStr::new("mesh.msh"));
+            let converted = folder.join(name).with_extension("msh");
+            crate::gmsh::convert_to_msh22(file, &converted)?;
+            Ok(converted)
+        }
+        _ => Ok(file.to_path_buf()),
+    }
+}
+
+/// Reads a user's mesh file, converting MSH 4 first ([`msh22_of`]); the mesh
+/// and its errors name the user's file.
+fn read_mesh_file(file: &Path) -> Result<Mesh> {
+    let dir = tempfile::tempdir()
+        .map_err(|e| Error::mesh(file, format!("cannot create a temporary folder: {e}")))?;
+    let _on_signal = crate::output::transaction::RemoveOnSignal::new(dir.path());
+    let path = msh22_of(file, dir.path())?;
+    let mut mesh = Mesh::read_msh(&path).map_err(|e| match e {
+        Error::Mesh { reason, .. } if path != file => {
+            Error::mesh(file, format!("converted to MSH 2.2 by gmsh: {reason}"))
+        }
+        other => other,
+    })?;
+    mesh.source = file.to_path_buf();
     Ok(mesh)
 }
 

@@ -533,3 +533,62 @@ fn freefem_reads_the_same_meshes() {
     let (_d, f, m) = mesh("disk.geo", &[("n", 0.0), ("h", 0.2)]);
     compare_with_freefem("disk h = 0.2", &f, &m);
 }
+
+/// gmsh's default output, MSH 4.1 (ASCII and binary), is read as a scene's
+/// `mesh.file`: gmsh converts it to MSH 2.2 first, so the solution equals
+/// the one on the same mesh written as MSH 2.2, and the FreeFEM twin reads
+/// the conversion too.
+#[test]
+fn msh41_files_are_read_through_gmsh() {
+    let dir = tempfile::tempdir().unwrap();
+    let geo = geo_file("disk.geo");
+    let write = |name: &str, extra: &[&str]| {
+        let path = dir.path().join(name);
+        let status = Command::new("gmsh")
+            .arg(&geo)
+            .args(["-2", "-setnumber", "n", "4", "-v", "0"])
+            .args(extra)
+            .arg("-o")
+            .arg(&path)
+            .status()
+            .expect("gmsh runs");
+        assert!(status.success(), "gmsh {extra:?}");
+        path
+    };
+    let (ascii, binary, v22) = (
+        write("a41.msh", &[]),
+        write("b41.msh", &["-bin"]),
+        write("c22.msh", &["-format", "msh22"]),
+    );
+    assert_eq!(obstacle_fem::gmsh::msh_major_version(&ascii), Some(4));
+    assert_eq!(obstacle_fem::gmsh::msh_major_version(&binary), Some(4));
+    assert_eq!(obstacle_fem::gmsh::msh_major_version(&v22), Some(2));
+    let solve = |file: &Path| {
+        let out = dir.path().join("r.h5");
+        let set = format!("mesh.file={}", file.display());
+        let o = common::solve_scene("obstacle-disk", &out, &[&set]);
+        assert!(o.status.success(), "{}", common::text(&o));
+        let r = obstacle_fem::output::read_result(&out).unwrap();
+        common::field(&r, "u").to_vec()
+    };
+    let reference = solve(&v22);
+    for file in [&ascii, &binary] {
+        assert_eq!(solve(file), reference, "{}", file.display());
+    }
+    let out = dir.path().join("ff.h5");
+    let args: Vec<String> = [
+        "freefem",
+        &common::scene_arg("obstacle-disk"),
+        "--set",
+        &format!("mesh.file={}", ascii.display()),
+        "--iterations",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    common::obstacle(&args);
+    assert!(out.exists());
+}
