@@ -645,14 +645,6 @@ impl Expression {
         }
     }
 
-    /// Whether the expression reads the variable (r reads x and y).
-    pub fn reads(&self, var: Variable) -> bool {
-        self.tree.nodes.iter().any(|n| match n {
-            Node::Variable(v) => *v == var || (*v == Variable::R && var != Variable::R),
-            _ => false,
-        })
-    }
-
     /// The text as written in the scene.
     pub fn text(&self) -> &str {
         &self.text

@@ -520,15 +520,6 @@ impl SurfaceLoad {
             None => f,
         }
     }
-
-    /// Whether any load is given.
-    pub fn is_zero(&self) -> bool {
-        self.force.iter().all(|f| f.as_constant() == Some(0.0))
-            && self
-                .pressure
-                .as_ref()
-                .is_none_or(|p| p.as_constant() == Some(0.0))
-    }
 }
 
 /// The element matrices of a_ρ, b and L on triangle t.

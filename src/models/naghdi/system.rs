@@ -322,8 +322,8 @@ fn fixed_mask(
         fix_fields(mesh, layout, tags, fields, &mut fixed);
     }
     let supports = scene.shell.as_ref().map_or(&[][..], |s| &s.support[..]);
+    let scale = mesh.h_max();
     for (k, support) in supports.iter().enumerate() {
-        let scale = mesh.h_max();
         let v = (0..mesh.n_vertices())
             .find(|&v| {
                 let x = mesh.vertices[v];
@@ -480,9 +480,10 @@ impl<'m> NaghdiSystem<'m> {
         // evaluate no data); the estimator's rule; the origin, where the
         // `gap_origin` probe evaluates the obstacle.
         let estimator_rule = TriangleRule::exact_for(crate::models::estimator::ESTIMATOR_RULE);
+        let locator = PointLocator::new(mesh);
         let mut rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
         rule_points.extend(quadrature_points(mesh, &estimator_rule));
-        if PointLocator::new(mesh).locate([0.0, 0.0]).is_some() {
+        if locator.locate([0.0, 0.0]).is_some() {
             rule_points.push([0.0, 0.0]);
         }
         let keyed = surface_load
@@ -504,7 +505,6 @@ impl<'m> NaghdiSystem<'m> {
                     reason,
                 })?;
         }
-        let locator = PointLocator::new(mesh);
         let mut point_loads = Vec::new();
         for (k, point) in load.map_or(&[][..], |l| &l.point[..]).iter().enumerate() {
             let (t, l) = locator.locate(point.at).ok_or_else(|| Error::Scene {
@@ -604,13 +604,14 @@ impl<'m> NaghdiSystem<'m> {
                 // Where a part's fixed dofs pin the constraint value to 0, the
                 // obstacle must admit 0 there: checked on every part, whatever
                 // its condition, before anything is solved.
+                // Φ where pinned; elsewhere min(Φ, 0), which any value ≥ 0 admits.
                 let pinned = constraint_pinned_vertices(mesh, &layout, &chart, &fixed);
+                let lower: Vec<f64> = phi
+                    .iter()
+                    .zip(&pinned)
+                    .map(|(&p, &pin)| if pin { p } else { p.min(0.0) })
+                    .collect();
                 for (tags, b) in &conditions {
-                    let lower: Vec<f64> = phi
-                        .iter()
-                        .zip(&pinned)
-                        .map(|(&p, &pin)| if pin { p } else { p.min(0.0) })
-                        .collect();
                     check_obstacle_against_boundary_values(
                         mesh,
                         scene,
@@ -1052,11 +1053,6 @@ fn min_max(v: &[f64]) -> (f64, f64) {
         })
 }
 
-/// A rigid translation along e_c is a zero-energy motion unless some dof of
-/// u_c is fixed: then K is singular whatever the loads (the plane's contact
-/// acts along e3 only and one-sidedly). Refused before assembling, naming
-/// the free directions. (Rigid rotations are not detected here; a
-/// factorisation that fails on them reports the singular pivot.)
 /// The layout's field called `name` (`u3`, `theta1`, …); the error names
 /// `key`, the `context` and the fields there are.
 fn field_named(
@@ -1082,6 +1078,11 @@ fn field_named(
     })
 }
 
+/// A rigid translation along e_c is a zero-energy motion unless some dof of
+/// u_c is fixed: then K is singular whatever the loads (the plane's contact
+/// acts along e3 only and one-sidedly). Refused before assembling, naming
+/// the free directions. (Rigid rotations are not detected here; a
+/// factorisation that fails on them reports the singular pivot.)
 fn check_translations_fixed(scene: &Scene, layout: &ShellLayout, fixed: &[bool]) -> Result<()> {
     let free: Vec<&str> = (0..3)
         .filter(|&c| {
