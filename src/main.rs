@@ -306,7 +306,7 @@ fn solve(
     let scene = Scene::load(scene, &command_line_overrides(set))?;
     let out = out.unwrap_or_else(|| PathBuf::from(format!("build/results/{}.h5", scene.name)));
     // Checked before the run: a marker path that is not the command's own
-    // is refused now, not after a long solve.
+    // is refused before meshing, not after a long solve.
     let marker = failure_marker
         .map(|m| FailureMarker::new(m, &out, &scene.input_files()))
         .transpose()?;
