@@ -454,11 +454,12 @@ fn run(command: Command) -> Result<Outcome> {
                 let exe = std::env::current_exe().map_err(|e| {
                     Error::output("obstacle", format!("cannot find this program's path: {e}"))
                 })?;
-                let snakefile = write_snakefile(&study, &out_dir, &exe)?;
+                let (snakefile, profile) = write_snakefile(&study, &out_dir, &exe)?;
                 outln!(
-                    "workflow: {} (run `snakemake -j N` in {})",
+                    "workflow: {} (run `snakemake -j N` in {}, or on Slurm `snakemake --profile slurm`: {})",
                     snakefile.display(),
-                    out_dir.display()
+                    out_dir.display(),
+                    profile.display()
                 );
                 return Ok(Outcome::Done);
             }

@@ -886,16 +886,70 @@ pub fn write_convergence_plots(
 /// taken as it is.
 const PARAM: &str = "lambda wildcards: ";
 
+/// Memory (MB) of a run's Slurm job besides what the memory guard
+/// estimates for its mesh: the `obstacle` process without its matrices
+/// (peak RSS 54 MB on the disk at n = 4 and at n = 16, plots included) and
+/// the Snakemake job step that starts it inside the job (a Python process:
+/// Snakemake running a six-run study on one machine peaks at 97 MB), with
+/// room to spare: a job above its request is killed.
+const JOB_BASE_MB: f64 = 512.0;
+
+/// The memory (MB) a run's job asks for when its mesh is known only after
+/// meshing (`mesh.h`, `mesh.file`) and the scene sets no `mesh.memory_limit_gb`.
+const UNKNOWN_MESH_MB: f64 = 4000.0;
+
+/// The minutes each run's job may take (Slurm `--time`): the profile's
+/// default, one value for the whole study, edited there.
+const RUNTIME_MINUTES: u32 = 60;
+
+/// What a run's job asks its scheduler for (Snakemake's `threads` and
+/// `resources`, Slurm's `--cpus-per-task` and `--mem`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunResources {
+    /// `solver.threads`.
+    pub threads: i64,
+    /// The memory guard's estimate for the run's mesh
+    /// ([`crate::guards::estimate_before_meshing`], `mesh.n`) plus
+    /// [`JOB_BASE_MB`]; for a mesh known only after meshing,
+    /// `mesh.memory_limit_gb` (what the run may use) or [`UNKNOWN_MESH_MB`],
+    /// plus [`JOB_BASE_MB`].
+    pub mem_mb: u64,
+}
+
+impl RunResources {
+    pub fn of(scene: &Scene) -> RunResources {
+        let mesh_mb = match (
+            crate::guards::estimate_before_meshing(scene),
+            scene.mesh.memory_limit_gb,
+        ) {
+            (Some(e), _) => e.bytes / 1e6,
+            (None, Some(gb)) => gb * 1e3,
+            (None, None) => UNKNOWN_MESH_MB,
+        };
+        RunResources {
+            threads: scene.solver.threads,
+            mem_mb: (mesh_mb + JOB_BASE_MB).ceil() as u64,
+        }
+    }
+}
+
 /// Writes `<out_dir>/Snakefile`: the study as a Snakemake workflow. One rule
 /// per run runs `obstacle solve` on the run's scene with the study's
 /// overrides into the result file the in-process study writes
 /// ([`Study::result_path`]); a numerical failure leaves its marker
-/// ([`failure_marker_path`]) instead of failing the workflow. The last rule
-/// builds the tables and plots from the files (`--from-results`). Paths are
-/// absolute; the binary is `obstacle` (this one) unless Snakemake's
-/// `--config obstacle=PATH` names another. Every run's scene is loaded
-/// first, so a bad override is refused here, not on the cluster.
-pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Result<PathBuf> {
+/// ([`failure_marker_path`]) instead of failing the workflow. Each run's
+/// rule asks for its [`RunResources`]. The last rule builds the tables and
+/// plots from the files (`--from-results`), where Snakemake runs (a local
+/// rule). Paths are absolute; the binary is `obstacle` (this one) unless
+/// Snakemake's `--config obstacle=PATH` names another. Every run's scene is
+/// loaded first, so a bad override is refused here, not on the cluster.
+/// Also writes the Slurm profile `<out_dir>/slurm/config.yaml`
+/// ([`slurm_profile`]). Returns both paths.
+pub fn write_snakefile(
+    study_path: &Path,
+    out_dir: &Path,
+    obstacle: &Path,
+) -> Result<(PathBuf, PathBuf)> {
     let study = Study::load(study_path)?;
     if study.name.contains(['{', '}']) {
         return Err(Error::Scene {
@@ -906,12 +960,10 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
     }
     let scene_path = study.scene_path(study_path);
     let runs = study.runs();
-    study.run_scenes(study_path, &runs)?;
-    let outputs = OutputTransaction::new(
-        out_dir,
-        "Snakefile",
-        &[study_path.to_path_buf(), scene_path.clone()],
-    )?;
+    let scenes = study.run_scenes(study_path, &runs)?;
+    let inputs = [study_path.to_path_buf(), scene_path.clone()];
+    let outputs = OutputTransaction::new(out_dir, "Snakefile", &inputs)?;
+    let profile_outputs = OutputTransaction::new(&out_dir.join("slurm"), "config", &inputs)?;
     let absolute = |p: &Path| {
         p.canonicalize()
             .map_err(|e| Error::output(p, format!("cannot resolve the path: {e}")))
@@ -929,14 +981,15 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
         py_str(&format!("{}.md", study.name)),
         py_str(&format!("{}.csv", study.name)),
     ];
-    let mut s = String::new();
+    let mut s = String::from(crate::output::transaction::WORKFLOW_HEADER);
     let _ = writeln!(
         s,
         "# The study {name} as a Snakemake workflow, written by\n\
          # `obstacle study {study} --out-dir {dir} --workflow snakemake`: one rule per run\n\
          # (`obstacle solve`; a run that fails numerically leaves RUN.failed), then the\n\
          # tables and plots (`obstacle study --from-results`). Run `snakemake -j N` here,\n\
-         # or on a cluster with a profile (README). Another binary: --config obstacle=PATH.\n\
+         # or on Slurm `snakemake --profile slurm` (slurm/config.yaml; README).\n\
+         # Another binary: --config obstacle=PATH.\n\
          \n\
          OBSTACLE = config.get(\"obstacle\", {exe})\n\
          STUDY = {study_py}\n\
@@ -946,6 +999,9 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
          OUT_DIR = {dir_py}\n\
          \n\
          workdir: OUT_DIR\n\
+         \n\
+         # The tables are built where Snakemake runs, not as a cluster job.\n\
+         localrules: all, table\n\
          \n\
          rule all:\n    input: {tables}\n\
          \n\
@@ -963,20 +1019,24 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
         tables = tables.join(", "),
         logs = logs.join(", "),
     );
-    for (i, labels) in runs.iter().enumerate() {
+    for (i, (labels, scene)) in runs.iter().zip(&scenes).enumerate() {
         let out = study.result_path(&dir_abs, i);
         let sets: Vec<String> = study
             .overrides(labels)
             .iter()
             .flat_map(|o| ["--set", o.as_str()].map(py_str))
             .collect();
+        let resources = RunResources::of(scene);
         let _ = writeln!(
             s,
-            "\nrule run_{i:03}:\n    output: {log}\n    params:\n        \
+            "\nrule run_{i:03}:\n    output: {log}\n    threads: {threads}\n    resources:\n        \
+             mem_mb={mem_mb},\n    params:\n        \
              out={PARAM}{out},\n        failed={PARAM}{failed},\n        sets={PARAM}[{sets}],\n    shell:\n        \
              \"(cd {{SCENE_DIR:q}} && {{OBSTACLE:q}} solve {{SCENE:q}} --quiet --out {{params.out:q}} \
              --failure-marker {{params.failed:q}} {{params.sets:q}}) > {{output:q}}\"",
             log = logs[i],
+            threads = resources.threads,
+            mem_mb = resources.mem_mb,
             out = path_str(&out),
             failed = path_str(&failure_marker_path(&out)),
             sets = sets.join(", "),
@@ -984,8 +1044,44 @@ pub fn write_snakefile(study_path: &Path, out_dir: &Path, obstacle: &Path) -> Re
     }
     let path = out_dir.join("Snakefile");
     crate::output::write_text_atomically(&outputs.stage(&path)?, &s)?;
+    let profile = out_dir.join("slurm").join("config.yaml");
+    crate::output::write_text_atomically(
+        &profile_outputs.stage(&profile)?,
+        &slurm_profile(&study.name),
+    )?;
+    profile_outputs.commit()?;
     outputs.commit()?;
-    Ok(path)
+    Ok((path, profile))
+}
+
+/// The Snakemake profile that runs a study's workflow on Slurm (Snakemake's
+/// executor plugin `snakemake-executor-plugin-slurm`): one job per run with
+/// the resources of its rule and [`RUNTIME_MINUTES`], per-job logs kept in
+/// `slurm-logs/`, job states read with `squeue` (which sees jobs finished
+/// within the cluster's `MinJobAge`; the plugin turns to `sacct` when that is
+/// shorter than three of its status intervals), and the cluster's default
+/// partition and account unless set in `default-resources`.
+pub fn slurm_profile(study_name: &str) -> String {
+    format!(
+        "{header}\
+         # Snakemake on Slurm for the study {name}: `snakemake --profile slurm` in the\n\
+         # study's out dir. Each run is one job asking for its rule's threads\n\
+         # (solver.threads) and mem_mb (the run's memory estimate), and the runtime below.\n\
+         executor: slurm\n\
+         jobs: 100                                  # jobs queued at a time\n\
+         latency-wait: 60                           # shared file systems are slow to show new files\n\
+         keep-going: true                           # a job the scheduler ends stops no other run\n\
+         default-resources:\n  \
+           runtime: {RUNTIME_MINUTES}                              # minutes per run (Slurm --time)\n  \
+           # slurm_partition: \"PARTITION\"          # a cluster without a default partition\n  \
+           # slurm_account: \"ACCOUNT\"              # a cluster that charges an account\n\
+         slurm-logdir: slurm-logs                   # one log per job: slurm-logs/rule_run_NNN/JOBID.log\n\
+         slurm-keep-successful-logs: true\n\
+         slurm-status-command: squeue\n\
+         slurm-init-seconds-before-status-checks: 5\n",
+        header = crate::output::transaction::WORKFLOW_HEADER,
+        name = study_name.escape_debug(),
+    )
 }
 
 /// `text` as a Python string literal.
@@ -1003,4 +1099,38 @@ fn py_str(text: &str) -> String {
     }
     s.push('"');
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disk(sets: &[&str]) -> Scene {
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/scenes/obstacle-disk.toml");
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        Scene::load(&path, &sets).unwrap()
+    }
+
+    /// A run's job asks for `solver.threads` CPUs and the memory guard's
+    /// estimate plus the job's base; for a mesh known only after meshing,
+    /// `mesh.memory_limit_gb` or the default, plus the base.
+    #[test]
+    fn a_run_asks_for_its_threads_and_its_memory_estimate() {
+        // The disk at n = 16: 2.9 · 256 triangles, 2.5 unknowns each, 3 KB each.
+        let scene = disk(&["mesh.n=16", "solver.threads=3"]);
+        let bytes = 2.9 * 256.0 * 2.5 * 3.0e3;
+        assert_eq!(
+            RunResources::of(&scene),
+            RunResources {
+                threads: 3,
+                mem_mb: (bytes / 1e6 + JOB_BASE_MB).ceil() as u64
+            }
+        );
+        let by_h = disk(&["mesh.h=0.1"]);
+        assert_eq!(by_h.mesh.n, None);
+        assert_eq!(RunResources::of(&by_h).mem_mb, 4512);
+        let limited = disk(&["mesh.h=0.1", "mesh.memory_limit_gb=2.5"]);
+        assert_eq!(RunResources::of(&limited).mem_mb, 3012);
+    }
 }

@@ -203,3 +203,42 @@ fn braces_in_the_out_dir_are_no_wildcards() {
     let (md, _) = common::study_tables(&flow, "flow");
     assert_eq!(md.matches("| 0.000001 | ").count(), 1, "{md}");
 }
+
+/// `--workflow` again on the same out dir replaces the Snakefile and the
+/// Slurm profile it wrote; a Snakefile or profile it did not write is
+/// refused, naming the file, and nothing is written.
+#[test]
+fn the_workflow_files_are_replaced_but_no_others() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = disk_study(
+        dir.path(),
+        ", \"mesh.n=4\"",
+        "[[sweep]]\nkey = \"solver.tol\"\nvalues = [1e-6]\n",
+    );
+    let out = dir.path().join("out");
+    for _ in 0..2 {
+        check_success(
+            "workflow",
+            &run_study(&study, &out, &["--workflow", "snakemake"]),
+        );
+    }
+    let profile = out.join("slurm/config.yaml");
+    assert!(std::fs::read_to_string(&profile)
+        .unwrap()
+        .contains("executor: slurm"));
+    for (file, text) in [
+        (out.join("Snakefile"), "rule all:\n    input: []\n"),
+        (profile, "executor: slurm\n"),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let o = run_study(&study, &out, &["--workflow", "snakemake"]);
+        let name = file.file_name().unwrap().to_str().unwrap();
+        assert_one_error(
+            &o,
+            &[name, "is not an obstacle workflow file; not replacing it"],
+            &format!("workflow over a foreign {name}"),
+        );
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), text);
+        std::fs::remove_file(&file).unwrap();
+    }
+}

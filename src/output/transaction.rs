@@ -300,6 +300,8 @@ impl OutputTransaction {
         });
         let kind = if is_marker {
             Some(OutputKind::Marker)
+        } else if target.file_name().is_some_and(|n| n == "Snakefile") {
+            Some(OutputKind::Workflow)
         } else {
             OutputKind::of(&extension(target))
         };
@@ -388,7 +390,15 @@ enum OutputKind {
     Text,
     /// `solve --failure-marker`: by content, never by extension.
     Marker,
+    /// The files of `study --workflow snakemake` (`Snakefile`, the profile's
+    /// `config.yaml`): by their first line, [`WORKFLOW_HEADER`].
+    Workflow,
 }
+
+/// The first line of every file `study --workflow snakemake` writes: a
+/// Snakefile or profile without it is not replaced.
+pub const WORKFLOW_HEADER: &str =
+    "# Written by `obstacle study --workflow snakemake`: replaced when that is run again.\n";
 
 impl OutputKind {
     fn of(ext: &str) -> Option<OutputKind> {
@@ -398,6 +408,7 @@ impl OutputKind {
             "xdmf" | "svg" | "html" => OutputKind::Xml,
             "png" => OutputKind::Png,
             "md" | "csv" | "txt" => OutputKind::Text,
+            "yaml" => OutputKind::Workflow,
             _ => return None,
         })
     }
@@ -411,6 +422,7 @@ impl OutputKind {
             OutputKind::Png => head.starts_with(b"\x89PNG\r\n\x1a\n"),
             OutputKind::Text => !head.contains(&0),
             OutputKind::Marker => head.starts_with(super::marker::HEADER.as_bytes()),
+            OutputKind::Workflow => head.starts_with(WORKFLOW_HEADER.as_bytes()),
         }
     }
 
@@ -422,6 +434,7 @@ impl OutputKind {
             OutputKind::Png => "a PNG",
             OutputKind::Text => "a text",
             OutputKind::Marker => "an obstacle failure marker",
+            OutputKind::Workflow => "an obstacle workflow",
         }
     }
 }
