@@ -101,7 +101,7 @@ fn a_study_on_slurm_gives_the_in_process_table() {
         .args([&snakemake, "--profile", "slurm"])
         .current_dir(&flow)
         .output()
-        .unwrap();
+        .unwrap_or_else(|e| panic!("cannot run bash ({e})"));
     check_success(
         &format!("{snakemake} --profile slurm on the local Slurm cluster"),
         &o,
@@ -147,7 +147,9 @@ fn a_study_on_slurm_gives_the_in_process_table() {
         ])
         .env("SLURM_CONF", cluster.join("slurm.conf"))
         .output()
-        .unwrap();
+        .unwrap_or_else(|e| {
+            panic!("cannot run sacct ({e}): install slurm-wlm (.ci/install-deps.sh)")
+        });
     check_success("sacct --completion", &o);
     let sacct = String::from_utf8(o.stdout).unwrap();
     let records = std::fs::read_to_string(cluster.join("jobcomp.txt")).unwrap();
