@@ -641,3 +641,30 @@ fn nested_start_carries_x_and_lambda() {
         rss
     );
 }
+
+/// Membrane states with independent references, p2b-mitc on 16×16: Cook's
+/// panel in plane stress against conforming P3 in FreeFEM (23.967 at
+/// (48, 52), freefem/plane-stress.edp; measured 1.0001) and the pressurised
+/// sphere at t/R = 1e-3 against the exact uniform stretch
+/// p R² (1 − ν)/(2 E t (1 + t²/(12 R²))) (measured 1.0046).
+#[test]
+fn membrane_states_against_independent_references() {
+    let dir = tempfile::tempdir().unwrap();
+    let plots = "output.plots=[]".to_string();
+    let cook = run(
+        "pipelines/scenes/shell/cook-panel.toml",
+        dir.path(),
+        std::slice::from_ref(&plots),
+    );
+    let ratio = attr(&cook, "probe_u2") / 23.967;
+    assert!((ratio - 1.0).abs() < 1e-3, "Cook's panel: {ratio}");
+    let t = 0.01;
+    let sphere = run(
+        "pipelines/scenes/shell/pressurized-sphere.toml",
+        dir.path(),
+        &[plots, format!("shell.thickness={t}")],
+    );
+    let exact = 100.0 * 100.0 * 0.7 / (2.0 * 6.825e7 * t) / (1.0 + t * t / 1200.0);
+    let ratio = attr(&sphere, "probe_u1") / exact;
+    assert!((ratio - 1.0).abs() < 0.01, "pressurised sphere: {ratio}");
+}

@@ -561,9 +561,6 @@ pub fn element_matrices(
                 for k in 0..basis.n {
                     let grad = g.gradient(basis.d_lambda[k]);
                     e[i] = field_strains(&p, field.role, basis.values[k], grad);
-                    if let Some(tied) = &tied {
-                        tied.tie(i, q.lambda, &mut e[i]);
-                    }
                     if pass.full {
                         if let FieldRole::Displacement(c) = field.role {
                             el.load[i] += q.weight * force[c] * basis.values[k] * p.sqrt_a;
@@ -571,6 +568,9 @@ pub fn element_matrices(
                     }
                     i += 1;
                 }
+            }
+            if let Some(tied) = &tied {
+                tied.tie(q.lambda, &mut e);
             }
             let de: Vec<StrainVector> = e
                 .iter()

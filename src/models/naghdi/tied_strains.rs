@@ -32,7 +32,7 @@
 //! Every map is linear in the strain; the element matrix integrates the
 //! interpolated strains with Radon's rule and no reduced-integration weight.
 
-use super::forms::{field_strains, FieldRole, ShellField, DELTA, GAMMA};
+use super::forms::{field_strains, FieldRole, ShellField, StrainVector, DELTA, GAMMA};
 use super::geometry::Chart;
 use crate::quadrature::{SegmentRule, TriangleRule};
 use crate::space::{Element, TriangleGeometry};
@@ -164,14 +164,13 @@ impl TiedStrain {
     fn new(
         group: TiedGroup,
         g: &TriangleGeometry,
-        fields: &[&ShellField],
-        chart: &Chart,
+        strains: &PointStrains,
         projected: &[bool],
     ) -> Self {
         let interpolation = group.functionals(g);
         let projection = group.projection_functionals();
-        let interpolated = moments(group, g, fields, chart, &interpolation);
-        let projected_moments = moments(group, g, fields, chart, &projection);
+        let interpolated = strains.moments(group, &interpolation);
+        let projected_moments = strains.moments(group, &projection);
         let interpolation_lu = moment_matrix(group, g, &interpolation).lu();
         let projection_lu = moment_matrix(group, g, &projection).lu();
         let coefficients = projected
@@ -218,7 +217,8 @@ impl TiedStrains {
                 (0..n).map(move |k| bubble_field && k == n - 1)
             })
             .collect();
-        let tie = |group| TiedStrain::new(group, g, fields, chart, &displacement_bubble);
+        let strains = PointStrains::new(g, fields, chart);
+        let tie = |group| TiedStrain::new(group, g, &strains, &displacement_bubble);
         TiedStrains {
             geometry: *g,
             groups: [tie(TiedGroup::Membrane), tie(TiedGroup::Shear)],
@@ -226,47 +226,84 @@ impl TiedStrains {
     }
 
     /// Overwrites the membrane and shear strains of `strains`, the strain
-    /// vector of local shape function `i` at the point λ, by their tied values.
-    pub fn tie(&self, i: usize, lambda: [f64; 3], strains: &mut [f64]) {
+    /// vectors of the local shape functions at the point λ, by their tied
+    /// values.
+    pub fn tie(&self, lambda: [f64; 3], strains: &mut [StrainVector]) {
         for tied in &self.groups {
             let (start, n_c) = tied.group.range();
             let basis = tied.group.basis(&self.geometry, lambda);
-            let c = &tied.coefficients[i];
-            for (k, s) in strains[start..start + n_c].iter_mut().enumerate() {
-                *s = basis.iter().zip(c.iter()).map(|(b, c)| b[k] * c).sum();
+            for (e, c) in strains.iter_mut().zip(&tied.coefficients) {
+                for (k, s) in e[start..start + n_c].iter_mut().enumerate() {
+                    *s = basis.iter().zip(c.iter()).map(|(b, c)| b[k] * c).sum();
+                }
             }
         }
     }
 }
 
-/// The functionals applied to the group's strains of every local shape
-/// function (the chart evaluated once per point).
-fn moments(
-    group: TiedGroup,
-    g: &TriangleGeometry,
-    fields: &[&ShellField],
-    chart: &Chart,
-    functionals: &[Functional],
-) -> Vec<DVector<f64>> {
-    let (start, n_c) = group.range();
-    let n: usize = fields.iter().map(|f| f.element.n_local()).sum();
-    let mut m = vec![DVector::zeros(functionals.len()); n];
-    for (row, functional) in functionals.iter().enumerate() {
-        for (lambda, w) in functional {
-            let p = chart.at(g.point(*lambda));
-            let mut i = 0;
-            for field in fields {
-                let basis = field.element.basis(*lambda);
-                for k in 0..basis.n {
-                    let grad = g.gradient(basis.d_lambda[k]);
-                    let e = field_strains(&p, field.role, basis.values[k], grad);
-                    m[i][row] += (0..n_c).map(|c| w[c] * e[start + c]).sum::<f64>();
-                    i += 1;
+/// The strains of every local shape function at every point the functionals
+/// of both groups use (three Gauss points per edge, Radon's seven), each
+/// point's chart geometry evaluated once.
+struct PointStrains {
+    points: Vec<[f64; 3]>,
+    /// strains[p][i]: local shape function i at point p.
+    strains: Vec<Vec<StrainVector>>,
+}
+
+impl PointStrains {
+    fn new(g: &TriangleGeometry, fields: &[&ShellField], chart: &Chart) -> Self {
+        let mut points: Vec<[f64; 3]> = Vec::new();
+        for group in [TiedGroup::Membrane, TiedGroup::Shear] {
+            for functional in group.functionals(g) {
+                for (lambda, _) in functional {
+                    if !points.contains(&lambda) {
+                        points.push(lambda);
+                    }
                 }
             }
         }
+        let strains = points
+            .iter()
+            .map(|&lambda| {
+                let p = chart.at(g.point(lambda));
+                fields
+                    .iter()
+                    .flat_map(|field| {
+                        let basis = field.element.basis(lambda);
+                        (0..basis.n)
+                            .map(|k| {
+                                let grad = g.gradient(basis.d_lambda[k]);
+                                field_strains(&p, field.role, basis.values[k], grad)
+                            })
+                            .collect::<Vec<_>>()
+                    })
+                    .collect()
+            })
+            .collect();
+        PointStrains { points, strains }
     }
-    m
+
+    /// The functionals applied to the group's strains of every local shape
+    /// function: one vector of moments per function. The projection's points
+    /// are Radon's, which the means use too.
+    fn moments(&self, group: TiedGroup, functionals: &[Functional]) -> Vec<DVector<f64>> {
+        let (start, n_c) = group.range();
+        let n = self.strains[0].len();
+        let mut m = vec![DVector::zeros(functionals.len()); n];
+        for (row, functional) in functionals.iter().enumerate() {
+            for (lambda, w) in functional {
+                let p = self
+                    .points
+                    .iter()
+                    .position(|q| q == lambda)
+                    .expect("every functional's points are in the table");
+                for (mi, e) in m.iter_mut().zip(&self.strains[p]) {
+                    mi[row] += (0..n_c).map(|c| w[c] * e[start + c]).sum::<f64>();
+                }
+            }
+        }
+        m
+    }
 }
 
 /// The functionals applied to the group's basis (row: functional, column:
