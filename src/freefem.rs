@@ -341,11 +341,11 @@ pub fn script_args(
 ) -> Result<Vec<String>> {
     let f = |x: f64| format!("{x:e}");
     let mut a: Vec<String> = vec!["-mesh".into(), msh.display().to_string()];
-    if scene.element == ElementPair::P2bRegge {
+    if scene.element == ElementPair::P2bMitc {
         return Err(scene_error(
             scene,
             "element",
-            "the FreeFEM twins are p1b-p0 and p2b-psri; p2b-regge has none",
+            "the FreeFEM twins are p1b-p0 and p2b-psri; p2b-mitc has none (docs/shell-benchmarks.md says what it is compared with)",
         ));
     }
     if scene.mesh.dirichlet.is_some() {

@@ -76,11 +76,11 @@ pub enum ElementPair {
     /// membrane and shear energies; P1 contact multipliers.
     #[serde(rename = "p2b-psri")]
     P2bPsri,
-    /// Shell only: the spaces, shear and contact of `p2b-psri`, the membrane
-    /// strain interpolated (Regge on P2, L² projection of the bubble) and
-    /// fully integrated.
-    #[serde(rename = "p2b-regge")]
-    P2bRegge,
+    /// Shell only, recommended: the spaces and contact of `p2b-psri`, the
+    /// membrane strain tied to Regge and the shear strain to Nédélec
+    /// elements, every energy fully integrated.
+    #[serde(rename = "p2b-mitc")]
+    P2bMitc,
 }
 
 impl ElementPair {
@@ -89,13 +89,13 @@ impl ElementPair {
             ElementPair::P1bP0 => "p1b-p0",
             ElementPair::P2P1 => "p2-p1",
             ElementPair::P2bPsri => "p2b-psri",
-            ElementPair::P2bRegge => "p2b-regge",
+            ElementPair::P2bMitc => "p2b-mitc",
         }
     }
 
     /// The locking-free shell elements (tangent rotations, P1 multipliers).
     pub fn is_p2b_shell(self) -> bool {
-        matches!(self, ElementPair::P2bPsri | ElementPair::P2bRegge)
+        matches!(self, ElementPair::P2bPsri | ElementPair::P2bMitc)
     }
 }
 
@@ -1347,7 +1347,7 @@ impl Scene {
             }
             (ElementPair::P2P1, _) => return Err(self.error(
                 "element",
-                "the shell elements are \"p1b-p0\" (the thesis'), \"p2b-psri\" and \"p2b-regge\" (locking-free)",
+                "the shell elements are \"p1b-p0\" (the thesis'), \"p2b-mitc\" (locking-free, recommended) and \"p2b-psri\"",
             )),
             _ => {}
         }

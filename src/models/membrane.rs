@@ -53,7 +53,7 @@ impl<'m> MembraneSystem<'m> {
         let (u_element, lambda_element) = match scene.element {
             ElementPair::P1bP0 => (Element::P1Bubble, Element::P0),
             ElementPair::P2P1 => (Element::P2, Element::P1),
-            ElementPair::P2bPsri | ElementPair::P2bRegge => {
+            ElementPair::P2bPsri | ElementPair::P2bMitc => {
                 unreachable!("validated: a shell element")
             }
         };
@@ -260,7 +260,7 @@ impl<'m> MembraneSystem<'m> {
                     .collect();
                 (g_vec, areas)
             }
-            ElementPair::P2P1 | ElementPair::P2bPsri | ElementPair::P2bRegge => {
+            ElementPair::P2P1 | ElementPair::P2bPsri | ElementPair::P2bMitc => {
                 // g_i = ∫ φ μ_i; w_i = lumped P1 mass (docs/formulation.md §1: the Riesz map
                 // whose projection is a nodal max).
                 let lam = &self.lambda_space;

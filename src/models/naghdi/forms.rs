@@ -13,9 +13,10 @@
 //!   integration (Arnold–Brezzi, as FEniCS-Shells): a weight
 //!   α_T = min(1, ε²/h_T²) on the full rule and 1 − α_T on the 3-point
 //!   interior rule of degree 2; P1 contact multipliers;
-//! * `p2b-regge`: the spaces, shear and contact of `p2b-psri`, with the
-//!   membrane strain interpolated ([`MembraneInterpolant`]) and fully
-//!   integrated, which has no zero-energy membrane mode.
+//! * `p2b-mitc`, the recommended element: the spaces and contact of
+//!   `p2b-psri`, with the membrane strain tied to Regge and the shear strain
+//!   to Nédélec elements ([`TiedStrains`]) and every energy fully
+//!   integrated: no reduced rule, no weight, no zero-energy mode.
 //!
 //! The unknowns are scalar fields in blocks ([`ShellLayout`]): the global index
 //! of scalar dof d of field f is `fields[f].offset + d`.
@@ -31,7 +32,7 @@
 //! [`scale_tangency_multiplier`] rebalances the ψ block for large ρ.
 
 use super::geometry::{obstacle_function, Chart, Material, SurfacePoint};
-use super::membrane_strain::MembraneInterpolant;
+use super::tied_strains::TiedStrains;
 use crate::assembly::{eliminate, quad_points, DofNumbering, ElementMatrix, Triplets};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
@@ -74,10 +75,10 @@ pub enum ShellElementKind {
     /// The locking-free element: (P2⊕B3)⁵ (u and two tangent rotation
     /// components), PSRI, P1 contact multipliers.
     P2bPsri,
-    /// The spaces of `P2bPsri`, PSRI on the shear only, the membrane strain
-    /// interpolated (Regge on P2, L² projection of the bubble) and fully
-    /// integrated.
-    P2bRegge,
+    /// The spaces of `P2bPsri`, the membrane strain tied to Regge and the
+    /// shear strain to Nédélec elements (L² projections for the displacement
+    /// bubbles), every energy fully integrated.
+    P2bMitc,
 }
 
 impl ShellElementKind {
@@ -86,7 +87,7 @@ impl ShellElementKind {
     pub fn multiplier_element(self) -> Element {
         match self {
             ShellElementKind::P1bP0 => Element::P0,
-            ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => Element::P1,
+            ShellElementKind::P2bPsri | ShellElementKind::P2bMitc => Element::P1,
         }
     }
 }
@@ -149,7 +150,7 @@ impl ShellLayout {
                     (name, role, Element::P1Bubble)
                 })
                 .collect(),
-            ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => vec![
+            ShellElementKind::P2bPsri | ShellElementKind::P2bMitc => vec![
                 ("u1", Displacement(0), Element::P2Bubble),
                 ("u2", Displacement(1), Element::P2Bubble),
                 ("u3", Displacement(2), Element::P2Bubble),
@@ -440,44 +441,37 @@ pub fn psri_weight(mesh: &Mesh, t: usize, thickness: f64) -> f64 {
 }
 
 /// The quadrature passes of the layout's element: one pass of Radon's rule
-/// (thesis), or the PSRI pair with α = [`psri_weight`] of the triangle (full
-/// rule: bending and α (membrane + shear); the interior 3-point rule of
-/// degree 2: (1 − α)(membrane + shear)); for `p2b-regge` the pair holds the
-/// shear only and the full rule the whole (interpolated) membrane energy.
+/// (thesis; `p2b-mitc`, whose tied strains need no reduced rule), or the PSRI
+/// pair of `p2b-psri` with α = [`psri_weight`] of the triangle (full rule:
+/// bending and α (membrane + shear); the interior 3-point rule of degree 2:
+/// (1 − α)(membrane + shear)).
 pub fn integration_passes(layout: &ShellLayout, alpha: f64) -> Vec<IntegrationPass> {
     match layout.kind {
-        ShellElementKind::P1bP0 => vec![IntegrationPass {
+        ShellElementKind::P1bP0 | ShellElementKind::P2bMitc => vec![IntegrationPass {
             rule: TriangleRule::exact_for(5),
             factors: None,
             full: true,
         }],
-        ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => {
-            let membrane = if layout.kind == ShellElementKind::P2bRegge {
-                1.0
-            } else {
-                alpha
-            };
-            vec![
-                IntegrationPass {
-                    rule: TriangleRule::exact_for(5),
-                    factors: Some(GroupFactors {
-                        membrane,
-                        bending: 1.0,
-                        shear: alpha,
-                    }),
-                    full: true,
-                },
-                IntegrationPass {
-                    rule: TriangleRule::exact_for(2),
-                    factors: Some(GroupFactors {
-                        membrane: 1.0 - membrane,
-                        bending: 0.0,
-                        shear: 1.0 - alpha,
-                    }),
-                    full: false,
-                },
-            ]
-        }
+        ShellElementKind::P2bPsri => vec![
+            IntegrationPass {
+                rule: TriangleRule::exact_for(5),
+                factors: Some(GroupFactors {
+                    membrane: alpha,
+                    bending: 1.0,
+                    shear: alpha,
+                }),
+                full: true,
+            },
+            IntegrationPass {
+                rule: TriangleRule::exact_for(2),
+                factors: Some(GroupFactors {
+                    membrane: 1.0 - alpha,
+                    bending: 0.0,
+                    shear: 1.0 - alpha,
+                }),
+                full: false,
+            },
+        ],
     }
 }
 
@@ -546,8 +540,8 @@ pub fn element_matrices(
         load: vec![0.0; n_u],
     };
     let mut e = vec![[0.0; N_STRAINS]; n_u];
-    let membrane = (layout.kind == ShellElementKind::P2bRegge)
-        .then(|| MembraneInterpolant::new(&g, &u_fields, chart));
+    let tied =
+        (layout.kind == ShellElementKind::P2bMitc).then(|| TiedStrains::new(&g, &u_fields, chart));
     for pass in passes {
         for q in quad_points(&g, t, &pass.rule) {
             let p = chart.at(q.x);
@@ -567,9 +561,6 @@ pub fn element_matrices(
                 for k in 0..basis.n {
                     let grad = g.gradient(basis.d_lambda[k]);
                     e[i] = field_strains(&p, field.role, basis.values[k], grad);
-                    if let Some(m) = &membrane {
-                        e[i][GAMMA..GAMMA + 3].copy_from_slice(&m.strain(i, q.lambda));
-                    }
                     if pass.full {
                         if let FieldRole::Displacement(c) = field.role {
                             el.load[i] += q.weight * force[c] * basis.values[k] * p.sqrt_a;
@@ -577,6 +568,9 @@ pub fn element_matrices(
                     }
                     i += 1;
                 }
+            }
+            if let Some(tied) = &tied {
+                tied.tie(q.lambda, &mut e);
             }
             let de: Vec<StrainVector> = e
                 .iter()
@@ -1173,7 +1167,7 @@ mod tests {
         for (kind, mass) in [
             (ShellElementKind::P1bP0, 1.45),
             (ShellElementKind::P2bPsri, 1.45),
-            (ShellElementKind::P2bRegge, 1.45),
+            (ShellElementKind::P2bMitc, 1.45),
         ] {
             let layout = ShellLayout::for_element(&mesh, kind);
             let passes = integration_passes(&layout, psri_weight(&mesh, 0, 0.8));

@@ -146,7 +146,7 @@ fn constraint_pinned_vertices(
             });
             match layout.kind {
                 ShellElementKind::P1bP0 => cartesian_pinned,
-                ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => tangent_pinned,
+                ShellElementKind::P2bPsri | ShellElementKind::P2bMitc => tangent_pinned,
             }
         })
         .collect()
@@ -429,7 +429,7 @@ impl<'m> NaghdiSystem<'m> {
         let material = Material::of(shell);
         let kind = match scene.element {
             ElementPair::P2bPsri => ShellElementKind::P2bPsri,
-            ElementPair::P2bRegge => ShellElementKind::P2bRegge,
+            ElementPair::P2bMitc => ShellElementKind::P2bMitc,
             _ => ShellElementKind::P1bP0,
         };
         let mut layout = ShellLayout::for_element(mesh, kind);
@@ -567,9 +567,7 @@ impl<'m> NaghdiSystem<'m> {
         }
         simulated.push(match (kind, plate_reduction) {
             (ShellElementKind::P2bPsri, _) => "tangent-rotations,reduced-integration".into(),
-            (ShellElementKind::P2bRegge, _) => {
-                "tangent-rotations,interpolated-membrane,reduced-integration".into()
-            }
+            (ShellElementKind::P2bMitc, _) => "tangent-rotations,tied-strains".into(),
             (_, true) => "tangency-eliminated".into(),
             (_, false) => "tangency-multiplier".into(),
         });
@@ -631,7 +629,7 @@ impl<'m> NaghdiSystem<'m> {
             material,
             rho: match kind {
                 ShellElementKind::P1bP0 => shell.rho.expect("validated: p1b-p0 has rho"),
-                ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => 0.0,
+                ShellElementKind::P2bPsri | ShellElementKind::P2bMitc => 0.0,
             },
             layout,
             numbering,
@@ -672,7 +670,7 @@ impl<'m> NaghdiSystem<'m> {
             ShellElementKind::P1bP0 => {
                 vec![("u", vec![0, 1, 2]), ("r", vec![3, 4, 5]), ("psi", vec![6])]
             }
-            ShellElementKind::P2bPsri | ShellElementKind::P2bRegge => {
+            ShellElementKind::P2bPsri | ShellElementKind::P2bMitc => {
                 vec![("u", vec![0, 1, 2]), ("theta", vec![3, 4])]
             }
         }
