@@ -12,6 +12,11 @@ pub enum Error {
         field: String,
         reason: String,
     },
+    /// A scene, study or benchmark file that cannot be read, or is no TOML:
+    /// the reason keeps TOML's own lines (line, column, the caret under the
+    /// offending character).
+    #[error("{file}: {reason}")]
+    SceneFile { file: PathBuf, reason: String },
     /// A mesh file is unreadable, malformed or geometrically invalid.
     #[error("{file}: {reason}")]
     Mesh { file: PathBuf, reason: String },

@@ -308,19 +308,13 @@ pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> Uzawa
 }
 
 /// The scene's α; "auto" is the Rust run's choice, 2/(s_max + s_min) capped
-/// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled `problem`.
+/// at 1.9/s_max from 50 Lanczos steps on the Rust-assembled `problem`. A scene
+/// without a step (an active-set or dual-accelerated scene: the twin runs
+/// Uzawa whatever the scene's method) gets "auto".
 pub fn resolve_alpha(scene: &Scene, problem: &ContactProblem) -> Result<f64> {
     let solver = &scene.solver;
-    match (solver.alpha_factor, solver.alpha) {
-        (None, Some(Alpha::Value(a))) => return Ok(a),
-        (None, None) => {
-            return Err(scene_error(
-                scene,
-                "solver.alpha",
-                "FreeFEM runs Uzawa, which needs a step α (a number or \"auto\")",
-            ))
-        }
-        _ => {}
+    if let (None, Some(Alpha::Value(a))) = (solver.alpha_factor, solver.alpha) {
+        return Ok(a);
     }
     // α = auto or alpha_factor × 2/s_max: the Rust run's rule and Lanczos estimate.
     uzawa_alpha_of(

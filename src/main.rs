@@ -43,6 +43,7 @@ enum Command {
     /// stop_reason = "max_iter"); 1 an error. With --failure-marker, 0 whenever
     /// the run's outcome is recorded (result or marker).
     Solve {
+        /// The scene file (TOML: docs/formulation.md, pipelines/scenes/ for examples).
         scene: PathBuf,
         /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9
         #[arg(long = "set", value_name = "KEY=VALUE")]
@@ -64,7 +65,9 @@ enum Command {
     },
     /// Mesh a scene's geometry with gmsh (MSH 2.2) and validate the mesh.
     Mesh {
+        /// The scene file (TOML: docs/formulation.md, pipelines/scenes/ for examples).
         scene: PathBuf,
+        /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9 (repeatable)
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         /// Mesh file (default: build/meshes/<scene name>.msh).
@@ -76,7 +79,9 @@ enum Command {
     /// Run a scene's FreeFEM twin (same .msh, same discrete problem, Uzawa) and
     /// write FILE.h5 (+ .xdmf) in the layout of `solve`.
     Freefem {
+        /// The scene file (TOML: docs/formulation.md, pipelines/scenes/ for examples).
         scene: PathBuf,
+        /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9 (repeatable)
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         /// Result file (default: build/freefem/<scene name>.h5).
@@ -123,7 +128,9 @@ enum Command {
     /// An [adapt] scene's loop beside uniform meshes n = 8…64 (`make adapt`):
     /// result files, a markdown table and the error curves in OUT_DIR.
     Adapt {
+        /// The scene file (TOML: docs/formulation.md, pipelines/scenes/ for examples).
         scene: PathBuf,
+        /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9 (repeatable)
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         #[arg(long, default_value = "build/adapt")]
@@ -181,7 +188,9 @@ enum BenchCommand {
     },
     /// One benchmark case (run by `bench run` in a child process): prints one `BENCH …` line.
     Case {
+        /// The scene file (TOML: docs/formulation.md, pipelines/scenes/ for examples).
         scene: PathBuf,
+        /// Override a scene key, e.g. --set mesh.n=64 --set solver.alpha=0.9 (repeatable)
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         /// Result file of the contact solve.

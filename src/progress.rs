@@ -1,5 +1,8 @@
-//! Progress of long iterations on a terminal (iteration, KKT measure, ETA);
-//! silent when stderr is not a terminal or under CI, so logs stay clean.
+//! Progress of long iterations: on a terminal a live line (iteration, KKT
+//! measure, ETA from the measured rate of decrease of the KKT measure); when
+//! stderr is a log (not a terminal, or under CI) one plain line every
+//! [`LOG_INTERVAL`], so a long run shows it is alive without flooding the
+//! log. `--quiet` silences both.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
@@ -10,8 +13,14 @@ pub fn progress_wanted() -> bool {
     std::io::stderr().is_terminal() && std::env::var_os("CI").is_none()
 }
 
+/// The interval between two progress lines in a log.
+pub const LOG_INTERVAL: Duration = Duration::from_secs(10);
+
 pub struct IterationProgress {
     bar: Option<ProgressBar>,
+    /// The iteration's name, for log lines; `None` when nothing is shown.
+    log_name: Option<String>,
+    last_log: Instant,
     tol: f64,
     start: Instant,
     last_draw: Instant,
@@ -36,6 +45,8 @@ impl IterationProgress {
         });
         let now = Instant::now();
         IterationProgress {
+            log_name: (show && bar.is_none()).then(|| name.to_string()),
+            last_log: now,
             bar,
             tol,
             start: now,
@@ -45,6 +56,17 @@ impl IterationProgress {
     }
 
     pub fn update(&mut self, iteration: usize, kkt: f64, dual_step: f64) {
+        if let Some(name) = &self.log_name {
+            if self.last_log.elapsed() >= LOG_INTERVAL {
+                self.last_log = Instant::now();
+                eprintln!(
+                    "{name}: iteration {iteration}, kkt {kkt:.2e} (tol {:.0e}), Δλ {dual_step:.2e}, {:.0} s elapsed",
+                    self.tol,
+                    self.start.elapsed().as_secs_f64()
+                );
+            }
+            return;
+        }
         let Some(bar) = &self.bar else { return };
         if self.last_draw.elapsed() < Duration::from_millis(100) {
             return;

@@ -936,12 +936,7 @@ impl PlotFormat {
 impl Scene {
     /// Reads a scene file, applies `--set key=value` overrides, validates.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::Scene {
-            file: path.to_path_buf(),
-            field: "(file)".into(),
-            reason: format!("cannot read: {e}"),
-        })?;
-        Scene::from_text(&text, path, overrides)
+        Scene::from_text(&read_text(path)?, path, overrides)
     }
 
     /// Parses scene text (`path` is used for messages and relative paths).
@@ -951,9 +946,7 @@ impl Scene {
             field: field.to_string(),
             reason,
         };
-        let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-            err("(syntax)", e.to_string().trim().replace('\n', " "))
-        })?;
+        let mut table = parse_toml(text, path)?;
         for o in overrides {
             apply_override(&mut table, o).map_err(|(field, reason)| err(&field, reason))?;
         }
@@ -963,10 +956,14 @@ impl Scene {
             // toml appends "in `field`" lines: the field is named already.
             let reason = e.into_inner().to_string();
             let reason: Vec<&str> = reason.lines().filter(|l| !l.starts_with("in `")).collect();
-            err(
-                if field == "." { "(top level)" } else { &field },
-                reason.join(" ").trim().to_string(),
-            )
+            let mut reason = reason.join(" ").trim().to_string();
+            let membrane = table.get("model").and_then(|m| m.as_str()) == Some("membrane");
+            if field.starts_with("load.f") && membrane {
+                reason.push_str(
+                    " (`load.f` is the shell's force vector [f1, f2, f3]; a membrane's load is `load.g`, a number or an expression)",
+                );
+            }
+            err(if field == "." { "(top level)" } else { &field }, reason)
         })?;
         scene.source = path.to_path_buf();
         scene.text = if overrides.is_empty() {
@@ -1565,6 +1562,23 @@ impl Scene {
     }
 }
 
+/// The text of a scene, study or benchmark file.
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|e| Error::SceneFile {
+        file: path.to_path_buf(),
+        reason: format!("cannot read the file: {e}"),
+    })
+}
+
+/// The TOML table of a file's text; a syntax error keeps TOML's message
+/// with its lines, so the caret stands under the offending character.
+fn parse_toml(text: &str, path: &Path) -> Result<toml::Table> {
+    text.parse().map_err(|e: toml::de::Error| Error::SceneFile {
+        file: path.to_path_buf(),
+        reason: format!("not valid TOML:\n{}", e.to_string().trim_end()),
+    })
+}
+
 /// Reads a TOML file into `T` (a study or benchmark description): errors
 /// name the file, the dotted field and the reason, like a scene's.
 pub fn read_toml_file<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
@@ -1573,11 +1587,7 @@ pub fn read_toml_file<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> 
         field: field.into(),
         reason,
     };
-    let text =
-        std::fs::read_to_string(path).map_err(|e| err("(file)", format!("cannot read: {e}")))?;
-    let table: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| err("(syntax)", e.to_string().replace('\n', " ")))?;
+    let table = parse_toml(&read_text(path)?, path)?;
     serde_path_to_error::deserialize(toml::Value::Table(table))
         .map_err(|e| err(&e.path().to_string(), e.into_inner().to_string()))
 }

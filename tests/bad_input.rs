@@ -73,7 +73,12 @@ fn malformed_toml_and_unknown_keys() {
     let broken = dir.path().join("broken.toml");
     std::fs::write(&broken, "name = \"x\"\nmodel = [\n").unwrap();
     let o = run_obstacle(&["solve", broken.to_str().unwrap(), "--out", o_str]);
-    assert_clear_failure(&o, &["broken.toml", "(syntax)"], &out, "malformed TOML");
+    assert_clear_failure(
+        &o,
+        &["broken.toml", "not valid TOML", "^"],
+        &out,
+        "malformed TOML",
+    );
     let missing = dir.path().join("missing.toml");
     let o = run_obstacle(&["solve", missing.to_str().unwrap(), "--out", o_str]);
     assert_clear_failure(&o, &["missing.toml", "cannot read"], &out, "missing scene");
