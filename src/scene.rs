@@ -1773,6 +1773,9 @@ step_form = "mean"
         let m = message(parse(&["mesh"]));
         assert!(m.contains("KEY=VALUE"), "{m}");
         let m = message(Scene::from_text("name = [", Path::new("bad.toml"), &[]));
-        assert!(m.contains("bad.toml") && m.contains("syntax"), "{m}");
+        assert!(
+            m.contains("bad.toml") && m.contains("not valid TOML") && m.contains("column 9"),
+            "{m}"
+        );
     }
 }
