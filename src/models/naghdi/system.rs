@@ -930,9 +930,10 @@ impl ModelSystem for NaghdiSystem<'_> {
                     .zip(&contact)
                     .filter_map(|(lw, &in_contact)| in_contact.then_some(lw))
             };
-            let area: f64 = active().map(|(_, w)| w).sum();
+            // Rust's empty f64 sum is −0.0; adding +0.0 records no contact as 0.
+            let area: f64 = active().map(|(_, w)| w).sum::<f64>() + 0.0;
             // ∫λ: the total force the plane exerts (C's row for u3 ≡ 1 is w).
-            let force: f64 = active().map(|(l, w)| l * w).sum();
+            let force: f64 = active().map(|(l, w)| l * w).sum::<f64>() + 0.0;
             contact_fields(
                 &mut data,
                 report.lambda.clone(),
