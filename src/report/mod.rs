@@ -1,25 +1,31 @@
 //! HTML pages over finished outputs: `obstacle report RESULT.h5` (one run:
-//! scene as run, mesh, solver and KKT measures, key numbers, its plots) and
-//! `obstacle index BUILD_DIR` (every table, figure and result of the main job,
-//! one line of explanation each). Pages only read what the runs wrote; every
-//! text is escaped and every link is relative, so a page moves with its folder.
+//! its status first, then its numbers grouped as problem, mesh, solver, KKT
+//! measures, timing and memory, its plots as a gallery, the scene as run)
+//! and `obstacle index BUILD_DIR` (the overview: every run's status, every
+//! study table, every figure as a thumbnail, and a report page per run).
+//!
+//! Pages only read what the runs wrote. They are askama templates
+//! (`templates/`): checked against their data when the crate compiles, and
+//! every value is HTML-escaped unless a template says otherwise (none does).
+//! Numbers go through [`crate::numbers`], one rule for meaningful digits.
+//! Every link is relative, so a page moves with its folder.
+
+mod index;
+
+pub use index::index_command;
 
 use crate::error::{Error, Result};
+use crate::numbers::{count, meaningful, mebibytes, seconds};
 use crate::output::blocks::result_mesh;
-use crate::output::xdmf::xml_escape;
+use crate::output::marker::newer_failure;
 use crate::output::{read_result, write_text_atomically, AttrValue, OutputTransaction, ResultFile};
 use crate::scene::PlotKind;
+use askama::Template;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// The page's style: one small sheet, no external resources.
-const STYLE: &str = "body{font-family:sans-serif;max-width:70em;margin:1em auto;padding:0 1em}\
-table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}\
-pre{background:#f4f4f4;padding:.5em;overflow-x:auto}img{max-width:100%;margin:.5em 0}\
-figure{margin:1em 0}";
-
-/// Root attributes shown first, as the run's key numbers (the others follow).
-const KEY_ATTRS: &[&str] = &["model", "element", "simulated", "u3_min", "contact_force"];
+/// Significant digits of the numbers on the pages.
+pub const DIGITS: usize = 4;
 
 /// The default page of a result: `RESULT.html` beside it.
 pub fn report_path(result: &Path) -> PathBuf {
@@ -43,82 +49,379 @@ pub fn result_plots(result: &Path) -> Vec<PathBuf> {
     plots
 }
 
-/// `obstacle report`: reads `result`, writes its page (default
-/// [`report_path`]) in one output transaction; returns the page's path.
+/// What became of a run: the status line of its page and its index row.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunStatus {
+    /// KKT measure within the tolerance (or one linear solve).
+    Converged { detail: String },
+    /// Stopped by `max_iter` or the thesis criterion above the tolerance.
+    NotConverged { detail: String },
+    /// Failed numerically: the error its failure marker holds.
+    Failed { reason: String },
+    /// A result file that cannot be read back.
+    Unreadable { reason: String },
+}
+
+impl RunStatus {
+    /// The CSS class of the status (and the status word, hyphenated).
+    pub fn class(&self) -> &'static str {
+        match self {
+            RunStatus::Converged { .. } => "converged",
+            RunStatus::NotConverged { .. } => "not-converged",
+            RunStatus::Failed { .. } => "failed",
+            RunStatus::Unreadable { .. } => "unreadable",
+        }
+    }
+
+    /// The status word: converged, not converged, failed, unreadable.
+    pub fn word(&self) -> &'static str {
+        match self {
+            RunStatus::Converged { .. } => "converged",
+            RunStatus::NotConverged { .. } => "not converged",
+            RunStatus::Failed { .. } => "failed",
+            RunStatus::Unreadable { .. } => "unreadable",
+        }
+    }
+
+    /// Why: the measures against the tolerance, or the error.
+    pub fn detail(&self) -> &str {
+        match self {
+            RunStatus::Converged { detail } | RunStatus::NotConverged { detail } => detail,
+            RunStatus::Failed { reason } | RunStatus::Unreadable { reason } => reason,
+        }
+    }
+
+    /// The status of a result file read back, from its `/solver` attributes.
+    pub fn of_result(file: &ResultFile) -> RunStatus {
+        let attrs = &file.data.solver_attrs;
+        let text = |name: &str| match find(attrs, name) {
+            Some(AttrValue::Str(s)) => s.clone(),
+            _ => String::new(),
+        };
+        let number = |name: &str| crate::output::numeric_attr(attrs, name);
+        let converged = matches!(find(attrs, "converged"), Some(AttrValue::Bool(true)));
+        let stop = text("stop_reason");
+        let iterations = number("iterations").unwrap_or(0.0).max(0.0) as u64;
+        let after = count(iterations, "iteration", "iterations");
+        let kkt = number("kkt").map_or_else(|| "–".into(), |v| meaningful(v, 3));
+        let tol = number("tol").map_or_else(|| "–".into(), |v| meaningful(v, 3));
+        if converged && stop == "linear" {
+            return RunStatus::Converged {
+                detail: "one linear solve (no contact constraint)".into(),
+            };
+        }
+        if converged {
+            return RunStatus::Converged {
+                detail: format!("KKT measure {kkt} ≤ tolerance {tol} after {after}"),
+            };
+        }
+        let why = match stop.as_str() {
+            "max_iter" => format!("stopped at max_iter after {after}"),
+            "thesis" => {
+                format!("stopped on the thesis criterion ‖λᵏ − λᵏ⁻¹‖ < thesis_tol after {after}")
+            }
+            "" => format!("after {after}"),
+            other => format!("stopped ({other}) after {after}"),
+        };
+        RunStatus::NotConverged {
+            detail: format!("{why}; KKT measure {kkt} > tolerance {tol}"),
+        }
+    }
+}
+
+/// A run's status and, unless it failed, its result file: the failure
+/// marker when it is newer than the result, else the result read back.
+pub fn run_outcome(result: &Path) -> (RunStatus, Option<ResultFile>) {
+    match newer_failure(result) {
+        Ok(Some(reason)) => return (RunStatus::Failed { reason }, None),
+        Ok(None) => {}
+        Err(e) => {
+            return (
+                RunStatus::Unreadable {
+                    reason: e.to_string(),
+                },
+                None,
+            )
+        }
+    }
+    match read_result(result) {
+        Ok(file) => (RunStatus::of_result(&file), Some(file)),
+        Err(e) => (
+            RunStatus::Unreadable {
+                reason: e.to_string(),
+            },
+            None,
+        ),
+    }
+}
+
+fn find<'a>(attrs: &'a [(String, AttrValue)], name: &str) -> Option<&'a AttrValue> {
+    attrs.iter().find(|(k, _)| k == name).map(|(_, v)| v)
+}
+
+/// `obstacle report`: the page of `result` (default [`report_path`]) in
+/// one output transaction; returns the page's path. A run whose failure
+/// marker is newer than its result gets a page saying it failed and why.
 pub fn report_command(result: &Path, out: Option<&Path>) -> Result<PathBuf> {
-    let file = read_result(result)?;
     let page = page_name(out.map_or_else(|| report_path(result), Path::to_path_buf))?;
+    let (status, file) = run_outcome(result);
+    let file = match (&status, file) {
+        (RunStatus::Unreadable { .. }, _) => Some(read_result(result)?),
+        (_, file) => file,
+    };
     let folder = page.parent().unwrap_or(Path::new(""));
     let label = page
         .file_stem()
         .and_then(|s| s.to_str())
         .unwrap_or("report");
     let outputs = OutputTransaction::new(folder, label, &[result.to_path_buf()])?;
-    let html = render_report(result, &file, &result_plots(result), folder)?;
+    let html = render_report(result, &status, file.as_ref(), folder, None)?;
     write_text_atomically(&outputs.stage(&page)?, &html)?;
     outputs.commit()?;
     Ok(page)
 }
 
-/// The page of one result file; `plots` are linked relative to `page_folder`.
+/// One row of a report table: what, its `/solver` or root attribute name
+/// (empty for a derived row), and the value as shown.
+pub struct Row {
+    pub label: String,
+    pub key: String,
+    pub value: String,
+}
+
+/// A titled table of a report.
+pub struct Group {
+    pub title: &'static str,
+    pub rows: Vec<Row>,
+}
+
+/// A picture in a gallery: its link (relative to the page) and caption.
+pub struct Picture {
+    pub src: String,
+    pub caption: String,
+}
+
+#[derive(Template)]
+#[template(path = "report.html")]
+struct ReportPage<'a> {
+    title: String,
+    status: &'a RunStatus,
+    index_link: Option<String>,
+    groups: Vec<Group>,
+    figures: Vec<Picture>,
+    scene_text: Option<&'a str>,
+}
+
+/// The page of the run that was to write `result`: its status, and when
+/// `file` is given its numbers and the plots beside it (linked relative to
+/// `page_folder`); `index` links back to the overview page.
 pub fn render_report(
     result: &Path,
-    file: &ResultFile,
-    plots: &[PathBuf],
+    status: &RunStatus,
+    file: Option<&ResultFile>,
     page_folder: &Path,
+    index: Option<&Path>,
 ) -> Result<String> {
-    let d = &file.data;
     let name = result
         .file_name()
         .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-    let mesh = result_mesh(file, result)?;
-    let mut s = page_head(&format!("obstacle report: {name}"));
+    let (groups, figures) = match file {
+        Some(file) => (
+            report_groups(result, file)?,
+            result_plots(result)
+                .iter()
+                .map(|p| Picture {
+                    src: relative_link(p, page_folder),
+                    caption: plot_caption(p),
+                })
+                .collect(),
+        ),
+        None => (Vec::new(), Vec::new()),
+    };
+    let page = ReportPage {
+        title: format!("obstacle report: {name}"),
+        status,
+        index_link: index.map(|i| relative_link(i, page_folder)),
+        groups,
+        figures,
+        scene_text: file.map(|f| f.data.scene_text.as_str()),
+    };
+    page.render()
+        .map_err(|e| Error::output(result, format!("cannot render the report page: {e}")))
+}
 
-    s.push_str("<h2>Key numbers</h2>\n<table>\n");
-    let mut root: Vec<&(String, AttrValue)> = d.root_attrs.iter().collect();
-    root.sort_by_key(|(k, _)| {
-        KEY_ATTRS
-            .iter()
-            .position(|a| a == k)
-            .unwrap_or(KEY_ATTRS.len())
+/// The caption of a plot beside a result: its kind (`RESULT.u.png` → `u`).
+fn plot_caption(plot: &Path) -> String {
+    let name = plot.file_name().unwrap_or_default().to_string_lossy();
+    let inner = name.split_once('.').map_or("", |(_, rest)| rest);
+    let kind = inner.rsplit_once('.').map_or(inner, |(k, _)| k);
+    match kind {
+        "u" => "u (displacement)".into(),
+        "lambda" => "λ (contact multiplier)".into(),
+        "contact" => "contact zone".into(),
+        "history" => "solver history".into(),
+        other => other.into(),
+    }
+}
+
+/// Where a `/solver` attribute goes on the page.
+fn solver_group(name: &str) -> usize {
+    match name {
+        "converged" | "kkt" | "penetration" | "dual_min" | "complementarity" | "stationarity"
+        | "tangency" | "active" | "dual_step" => KKT,
+        n if n.ends_with("seconds") || n.starts_with("seconds_at_end_of_") => TIMING,
+        n if n.starts_with("peak_rss_mb_") => MEMORY,
+        _ => SOLVER,
+    }
+}
+
+const PROBLEM: usize = 0;
+const MESH: usize = 1;
+const SOLVER: usize = 2;
+const KKT: usize = 3;
+const TIMING: usize = 4;
+const MEMORY: usize = 5;
+const GROUP_TITLES: [&str; 6] = [
+    "Problem",
+    "Mesh",
+    "Solver",
+    "KKT measures",
+    "Timing",
+    "Memory",
+];
+
+/// What a known attribute is, for the row's label.
+fn label_of(name: &str) -> String {
+    let known = match name {
+        "model" => "model",
+        "element" => "element pair",
+        "simulated" => "what is simulated",
+        "scene" => "scene",
+        "u3_min" => "min u₃",
+        "contact_force" => "contact force ∫λ",
+        "contact_area" => "contact area",
+        "contact_radius" => "contact radius a_h",
+        "exact_contact_radius" => "exact contact radius a",
+        "gap_origin" => "gap at the origin",
+        "strain_energy" => "strain energy",
+        "external_work" => "external work",
+        "error_l2" => "L² error of u",
+        "error_h1" => "H¹ error of u",
+        "error_l2_lambda" => "L² error of λ",
+        "phi_positive_vertices" => "vertices with Φ_h > 0",
+        "tangency_scale" => "tangency scale σ",
+        "algorithm" => "algorithm",
+        "method" => "method",
+        "iterations" => "iterations",
+        "stop_reason" => "stopped by",
+        "stop" => "stop rule",
+        "tol" => "KKT tolerance",
+        "thesis_tol" => "thesis tolerance ‖Δλ‖",
+        "max_iter" => "max iterations",
+        "threads" => "threads",
+        "dual_norm" => "norm of ‖Δλ‖",
+        "step_form" => "step form",
+        "cold_start" => "cold start",
+        "alpha" => "dual step α",
+        "s_max_estimate" => "s_max (Lanczos)",
+        "s_min_ritz" => "s_min (Ritz value)",
+        "stability_bound" => "stability bound 2/s_max",
+        "converged" => "converged (KKT ≤ tolerance)",
+        "kkt" => "relative KKT measure",
+        "penetration" => "penetration max(0, −min ḡ)",
+        "dual_min" => "min λ",
+        "complementarity" => "complementarity max |λᵢḡᵢ|",
+        "stationarity" => "stationarity ‖Ku − F − Cᵀλ‖/‖F‖",
+        "tangency" => "tangency ‖BU‖",
+        "active" => "active constraints",
+        "dual_step" => "last step ‖λᵏ − λᵏ⁻¹‖",
+        "wall_seconds" => "solver wall time",
+        "factor_seconds" => "factorisation",
+        "run_seconds" => "whole run",
+        _ => "",
+    };
+    if !known.is_empty() {
+        known.into()
+    } else if let Some(phase) = name.strip_prefix("seconds_at_end_of_") {
+        format!("end of {phase} (since the start)")
+    } else if let Some(phase) = name.strip_prefix("peak_rss_mb_") {
+        format!("peak resident memory at the end of {phase}")
+    } else {
+        name.replace('_', " ")
+    }
+}
+
+/// An attribute's value as the page shows it: meaningful digits, seconds
+/// and memory with their units, yes/no, strings as they are.
+fn value_of(name: &str, v: &AttrValue) -> String {
+    match v {
+        AttrValue::F64(x) if name.ends_with("seconds") || name.starts_with("seconds_") => {
+            seconds(*x)
+        }
+        AttrValue::F64(x) if name.starts_with("peak_rss_mb_") => mebibytes(*x),
+        AttrValue::F64(x) => meaningful(*x, DIGITS),
+        AttrValue::I64(x) => x.to_string(),
+        AttrValue::Bool(true) => "yes".into(),
+        AttrValue::Bool(false) => "no".into(),
+        AttrValue::Str(s) => s.clone(),
+    }
+}
+
+fn attr_row(name: &str, v: &AttrValue) -> Row {
+    Row {
+        label: label_of(name),
+        key: name.into(),
+        value: value_of(name, v),
+    }
+}
+
+/// The report's tables: root attributes (problem), the mesh, the `/solver`
+/// attributes split into solver, KKT measures, timing and memory, and the
+/// history's size; empty groups left out.
+fn report_groups(result: &Path, file: &ResultFile) -> Result<Vec<Group>> {
+    let d = &file.data;
+    let mesh = result_mesh(file, result)?;
+    let mut rows: [Vec<Row>; 6] = Default::default();
+    for (k, v) in &d.root_attrs {
+        rows[PROBLEM].push(attr_row(k, v));
+    }
+    rows[PROBLEM].push(Row {
+        label: "program version".into(),
+        key: "version".into(),
+        value: file.version.clone(),
     });
-    table_row(&mut s, "version", &file.version);
-    for (k, v) in root {
-        table_row(&mut s, k, &attr_text(v));
-    }
-    s.push_str("</table>\n<h2>Mesh</h2>\n<table>\n");
-    table_row(&mut s, "vertices", &mesh.n_vertices().to_string());
-    table_row(&mut s, "triangles", &mesh.n_triangles().to_string());
-    table_row(&mut s, "edges", &mesh.n_edges().to_string());
-    table_row(&mut s, "h (longest edge)", &format!("{:.6}", mesh.h_max()));
-    s.push_str("</table>\n<h2>Solver and KKT measures</h2>\n<table>\n");
+    let derived = |label: &str, value: String| Row {
+        label: label.into(),
+        key: String::new(),
+        value,
+    };
+    rows[MESH].push(derived("vertices", mesh.n_vertices().to_string()));
+    rows[MESH].push(derived("triangles", mesh.n_triangles().to_string()));
+    rows[MESH].push(derived("edges", mesh.n_edges().to_string()));
+    rows[MESH].push(derived(
+        "h (longest edge)",
+        meaningful(mesh.h_max(), DIGITS),
+    ));
     for (k, v) in &d.solver_attrs {
-        table_row(&mut s, k, &attr_text(v));
+        rows[solver_group(k)].push(attr_row(k, v));
     }
-    let iterations = d.history.first().map_or(0, |(_, v)| v.len());
-    table_row(
-        &mut s,
-        "history",
-        &format!("{} measures × {iterations} iterations", d.history.len()),
-    );
-    s.push_str("</table>\n<h2>Plots</h2>\n");
-    if plots.is_empty() {
-        s.push_str("<p>No plot beside the result file.</p>\n");
-    }
-    for p in plots {
-        let src = relative_link(p, page_folder);
-        let _ = writeln!(
-            s,
-            "<figure><img src=\"{0}\" alt=\"{0}\"><figcaption>{0}</figcaption></figure>",
-            xml_escape(&src)
+    let iterations = d.history.first().map_or(0, |(_, v)| v.len()) as u64;
+    if !d.history.is_empty() {
+        let mut text = format!(
+            "{} × {} in /solver/history",
+            count(d.history.len() as u64, "measure", "measures"),
+            count(iterations, "iteration", "iterations")
         );
+        let names: Vec<&str> = d.history.iter().map(|(n, _)| n.as_str()).collect();
+        let _ = write!(text, " ({})", names.join(", "));
+        rows[SOLVER].push(derived("history", text));
     }
-    let _ = write!(
-        s,
-        "<h2>Scene as run</h2>\n<pre>{}</pre>\n</body>\n</html>\n",
-        xml_escape(&d.scene_text)
-    );
-    Ok(s)
+    Ok(GROUP_TITLES
+        .into_iter()
+        .zip(rows)
+        .filter(|(_, rows)| !rows.is_empty())
+        .map(|(title, rows)| Group { title, rows })
+        .collect())
 }
 
 /// A page's path, refused unless it ends in `.html`.
@@ -131,31 +434,6 @@ fn page_name(page: PathBuf) -> Result<PathBuf> {
             "the page's file name must end in .html",
         ))
     }
-}
-
-/// An attribute as the page shows it: strings without quotes.
-fn attr_text(v: &AttrValue) -> String {
-    match v {
-        AttrValue::Str(s) => s.clone(),
-        other => other.to_string(),
-    }
-}
-
-fn table_row(s: &mut String, key: &str, value: &str) {
-    let _ = writeln!(
-        s,
-        "<tr><th>{}</th><td>{}</td></tr>",
-        xml_escape(key),
-        xml_escape(value)
-    );
-}
-
-fn page_head(title: &str) -> String {
-    let title = xml_escape(title);
-    format!(
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
-         <title>{title}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n<h1>{title}</h1>\n"
-    )
 }
 
 /// A link from a page in `folder` to `path`: relative to the page (with
@@ -204,163 +482,6 @@ fn percent_encode(bytes: &[u8]) -> String {
     s
 }
 
-/// Outputs of the main job with a fixed explanation (file stem → line).
-const KNOWN: &[(&str, &str)] = &[
-    (
-        "membrane-thesis",
-        "membrane, both pairs, h = 0.8 … 0.1, α = 0.9, 1.9, auto (thesis Tables 5.1–5.4)",
-    ),
-    (
-        "membrane-convergence",
-        "membrane errors and rates of converged solutions against the exact solution",
-    ),
-    (
-        "naghdi-hypar",
-        "the thesis shell (hyperbolic paraboloid) in contact with its obstacle",
-    ),
-    ("naghdi-hypar-free", "the thesis shell without obstacle"),
-    ("naghdi-history", "shell Uzawa history (thesis Table 5.5)"),
-    ("naghdi-rho", "shell ρ sweep (thesis Tables 5.6 and 5.8)"),
-    ("naghdi-alpha", "shell α sweep (thesis Table 5.7)"),
-    (
-        "naghdi-refinement",
-        "shell refinement n = 16 … 128, errors against the finest mesh (thesis Fig. 5.10)",
-    ),
-];
-
-/// The folders of the main job that the index lists, below the build folder.
-const INDEX_FOLDERS: &[&str] = &["results", "studies"];
-
-/// `obstacle index`: the page linking every table (`.md`, `.csv`), figure
-/// (`.png`, `.svg`) and result (`.h5`, with its report page when written)
-/// under `build/results` and `build/studies`; returns the page's path.
-pub fn index_command(build: &Path, out: Option<&Path>) -> Result<PathBuf> {
-    let page = page_name(out.map_or_else(|| build.join("index.html"), Path::to_path_buf))?;
-    let folder = page.parent().unwrap_or(Path::new(""));
-    // Created first: the links are resolved against the page's folder.
-    let outputs = OutputTransaction::new(folder, "index", &[])?;
-    let mut s = page_head("obstacle-fem: outputs of the main job");
-    for sub in INDEX_FOLDERS {
-        let dir = build.join(sub);
-        let mut files = Vec::new();
-        list_files(&dir, &mut files)?;
-        files.sort();
-        let _ = writeln!(s, "<h2>{}</h2>", xml_escape(&dir.display().to_string()));
-        if files.is_empty() {
-            s.push_str("<p>Nothing written yet.</p>\n");
-            continue;
-        }
-        s.push_str("<ul>\n");
-        for f in files.iter().filter(|f| listed_kind(f).is_some()) {
-            let link = xml_escape(&relative_link(f, folder));
-            let text = xml_escape(&f.file_name().unwrap_or_default().to_string_lossy());
-            let _ = write!(s, "<li><a href=\"{link}\">{text}</a>");
-            let page = report_path(f);
-            if has_extension(f, "h5") && page.is_file() {
-                let _ = write!(
-                    s,
-                    " (<a href=\"{}\">report</a>)",
-                    xml_escape(&relative_link(&page, folder))
-                );
-            }
-            let _ = writeln!(s, ": {}</li>", xml_escape(&explanation(f)));
-        }
-        s.push_str("</ul>\n");
-    }
-    s.push_str("</body>\n</html>\n");
-    write_text_atomically(&outputs.stage(&page)?, &s)?;
-    outputs.commit()?;
-    Ok(page)
-}
-
-/// Every non-hidden file below `dir` (none when it does not exist).
-fn list_files(dir: &Path, files: &mut Vec<PathBuf>) -> Result<()> {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return Ok(());
-    };
-    for entry in entries {
-        let entry = entry.map_err(|e| Error::output(dir, format!("cannot list: {e}")))?;
-        let path = entry.path();
-        // Hidden entries are staging folders of runs under way.
-        if entry.file_name().to_string_lossy().starts_with('.') {
-            continue;
-        }
-        // The entry itself, not what a symlink points to (a link to a folder
-        // could loop); of the rest only regular files (or links to them):
-        // a FIFO or a device would block or stream when read.
-        let kind = entry
-            .file_type()
-            .map_err(|e| Error::output(&path, format!("cannot inspect: {e}")))?;
-        if kind.is_dir() {
-            list_files(&path, files)?;
-        } else if path.is_file() {
-            files.push(path);
-        }
-    }
-    Ok(())
-}
-
 fn has_extension(path: &Path, ext: &str) -> bool {
     path.extension().and_then(|e| e.to_str()) == Some(ext)
-}
-
-/// What the index calls a file it lists: table, figure or result.
-fn listed_kind(path: &Path) -> Option<&'static str> {
-    match path.extension().and_then(|e| e.to_str())? {
-        "md" | "csv" => Some("table"),
-        "png" | "svg" => Some("figure"),
-        "h5" => Some("result"),
-        _ => None,
-    }
-}
-
-/// One line about a listed file: the known name's line, else the study's
-/// title (the first line of `<stem>.md` beside it), else that of the study
-/// whose run or plot it is, else the file kind; a figure of a result says
-/// which plot of which result it is.
-fn explanation(path: &Path) -> String {
-    let kind = listed_kind(path).unwrap_or("file");
-    let name = path.file_name().unwrap_or_default().to_string_lossy();
-    // The stem up to the first dot: `RESULT.u.png` belongs to `RESULT`.
-    let (stem, rest) = name.split_once('.').unwrap_or((&name, ""));
-    let plot = rest
-        .rsplit_once('.')
-        .map(|(p, _)| p)
-        .filter(|p| !p.is_empty());
-    if let Some(d) = describe(path, stem) {
-        return match (kind, plot) {
-            ("figure", Some(p)) => format!("figure {p}: {d}"),
-            _ => format!("{kind}: {d}"),
-        };
-    }
-    // A study's run or plot: `STUDY-000.h5`, `STUDY-convergence-0.png`.
-    let owner = stem
-        .match_indices('-')
-        .rev()
-        .find_map(|(i, _)| describe(path, &stem[..i]).map(|d| (&stem[i + 1..], d)));
-    match (kind, plot, owner) {
-        (kind, _, Some((part, d))) => format!("{kind} {part} of: {d}"),
-        ("figure", Some(p), None) => format!("figure {p} of {stem}"),
-        (kind, _, None) => kind.to_string(),
-    }
-}
-
-/// The line of a known name, else the title of `<name>.md` beside `path`.
-fn describe(path: &Path, name: &str) -> Option<String> {
-    KNOWN
-        .iter()
-        .find(|(k, _)| *k == name)
-        .map(|(_, line)| line.to_string())
-        .or_else(|| study_title(&path.with_file_name(format!("{name}.md"))))
-}
-
-/// The title of a study's Markdown table (its first line, `## TITLE`).
-fn study_title(md: &Path) -> Option<String> {
-    // Only a regular file (or a link to one) is read: a FIFO would block.
-    if !md.is_file() {
-        return None;
-    }
-    let text = std::fs::read_to_string(md).ok()?;
-    let title = text.lines().next()?.trim_start_matches('#').trim();
-    (!title.is_empty()).then(|| title.to_string())
 }
