@@ -122,12 +122,12 @@ mod tests {
         assert_eq!(meaningful(0.30000000000000004, 4), "0.3");
         assert_eq!(meaningful(1234.6, 4), "1235");
         assert_eq!(meaningful(-0.0, 3), "0");
-        assert_eq!(meaningful(-1e-20, 3), "-1×10⁻²⁰");
-        assert_eq!(meaningful(-0.0001, 3), "-1×10⁻⁴");
+        assert_eq!(meaningful(-1e-20, 3), "-10⁻²⁰");
+        assert_eq!(meaningful(-0.0001, 3), "-10⁻⁴");
         assert_eq!(meaningful(-0.00049, 1), "-5×10⁻⁴");
         assert_eq!(meaningful(1.5e-7, 4), "1.5×10⁻⁷");
         assert_eq!(meaningful(1e-3, 3), "0.001");
-        assert_eq!(meaningful(99999.7, 4), "1×10⁵");
+        assert_eq!(meaningful(99999.7, 4), "10⁵");
         assert_eq!(meaningful(28500.0, 4), "28500");
         assert_eq!(meaningful(2.3e-3, 2), "0.0023");
         assert_eq!(meaningful(1e-8, 2), "10⁻⁸");

@@ -506,6 +506,7 @@ fn explanation(path: &Path) -> String {
         .rev()
         .find_map(|(i, _)| describe(path, &stem[..i]).map(|d| (&stem[i + 1..], d)));
     match (kind, plot, owner) {
+        ("figure", Some(p), Some((run, d))) => format!("figure {p} of run {run}: {d}"),
         (kind, _, Some((part, d))) => format!("{kind} {part} of: {d}"),
         ("figure", Some(p), None) => format!("figure {p} of {stem}"),
         (kind, _, None) => kind.to_string(),
