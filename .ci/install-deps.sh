@@ -5,7 +5,7 @@
 # Chromium (the tests render result files and report pages with them), and
 # Snakemake from PyPI in a venv (tests/study_workflow.rs runs a study through
 # it; the tests find it at $OBSTACLE_SNAKEMAKE, default the venv's).
-# Uses sudo when not root. Rust (cargo ≥ 1.85) must already be installed.
+# Uses sudo when not root. Rust (cargo ≥ 1.89) must already be installed.
 set -euo pipefail
 packages=(gmsh freefem++ libfreefem++ libhdf5-dev hdf5-tools pkg-config build-essential
           paraview python3-paraview xvfb xauth chromium python3-venv)
@@ -32,6 +32,6 @@ if [ "$("$venv/bin/snakemake" --version 2>/dev/null)" != "$snakemake_version" ];
     $sudo "$venv/bin/pip" install -q "snakemake==$snakemake_version"
 fi
 if ! command -v cargo >/dev/null 2>&1; then
-    echo "error: cargo not found: install Rust (https://rustup.rs), version 1.85 or newer" >&2
+    echo "error: cargo not found: install Rust (https://rustup.rs), version 1.89 or newer" >&2
     exit 1
 fi
