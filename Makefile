@@ -5,7 +5,9 @@
 #   make test     the test suite
 #   make deps     install the Debian packages (gmsh, FreeFEM, HDF5, ...) if missing
 CARGO ?= cargo
-BIN := target/release/obstacle
+# The binary cargo builds: below $(CARGO_TARGET_DIR) when that is set
+# (`make all CARGO_TARGET_DIR=/elsewhere`), else below target/.
+BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 BUILD := build
 STUDIES := $(BUILD)/studies
 
@@ -15,10 +17,10 @@ STUDIES := $(BUILD)/studies
 all: membrane-tables membrane-convergence naghdi naghdi-tables naghdi-refinement
 	@$(MAKE) --no-print-directory index
 
-# A report page per result of build/results, then build/index.html linking
-# every table, figure and result under build/results and build/studies.
+# build/index.html: every run's status, every study table (from its CSV),
+# every figure, under build/results and build/studies; and a report page
+# beside every run (failed runs included).
 index: build
-	for f in $(wildcard $(BUILD)/results/*.h5); do $(BIN) report $$f || exit 1; done
 	$(BIN) index $(BUILD)
 
 deps:
@@ -182,7 +184,6 @@ threads-timings: build
 #   make scale-512  the shell at n = 512 (≈ 6M unknowns) in contact to 1e-8 against
 #                its floor, peak RSS per phase (~12 min, 17 GB)
 #   make study   work–precision: error against time, report in build/study/
-BENCH_BIN := $(if $(CARGO_TARGET_DIR),$(CARGO_TARGET_DIR),target)/release/obstacle
 
 # Issue 14: the adaptive loop on the disk and the L-shape beside uniform n = 8…64, both pairs
 # (build/adapt/*.md tables, *.dofs.png and *.time.png curves).
@@ -196,20 +197,20 @@ adapt: build
 .PHONY: bench bench-1000 scale scale-512 study
 
 bench: build
-	$(BENCH_BIN) bench run pipelines/bench/bench.toml --out-dir $(BUILD)/bench
+	$(BIN) bench run pipelines/bench/bench.toml --out-dir $(BUILD)/bench
 
 # Target 2 of issue 5: Uzawa capped at 1000 × the active-set time (~1 h).
 bench-1000: build
-	$(BENCH_BIN) bench run pipelines/bench/uzawa-1000.toml --out-dir $(BUILD)/bench-1000
+	$(BIN) bench run pipelines/bench/uzawa-1000.toml --out-dir $(BUILD)/bench-1000
 
 scale: build
-	ulimit -v 20000000; OBSTACLE_TOOL_TIMEOUT=3600 $(BENCH_BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale
+	ulimit -v 20000000; OBSTACLE_TOOL_TIMEOUT=3600 $(BIN) bench run pipelines/bench/scale.toml --out-dir $(BUILD)/scale
 
 scale-512: build
-	ulimit -v 23500000; OBSTACLE_TOOL_TIMEOUT=3600 $(BENCH_BIN) bench run pipelines/bench/scale-512.toml --out-dir $(BUILD)/scale-512
+	ulimit -v 23500000; OBSTACLE_TOOL_TIMEOUT=3600 $(BIN) bench run pipelines/bench/scale-512.toml --out-dir $(BUILD)/scale-512
 
 study: build
-	$(BENCH_BIN) bench study --out-dir $(BUILD)/study \
+	$(BIN) bench study --out-dir $(BUILD)/study \
 	  --exact pipelines/studies/work-precision-disk.toml \
 	  --exact pipelines/studies/work-precision-disk-uzawa.toml \
 	  --reference pipelines/studies/work-precision-shell-reference.toml \
@@ -261,8 +262,9 @@ hard-mitc: build
 	-$(BIN) hard pipelines/scenes/hard --set '*:element=p2b-mitc' --set mesh-large:mesh.n=$(HARD_LARGE_N) --out-dir $(BUILD)/hard-mitc
 
 .PHONY: paraview
-# Issue 15: the deformed thesis shell in 3D, rendered by ParaView itself
-# (Debian's paraview: pvbatch; xvfb for its OpenGL context).
+# The thesis shell rendered by ParaView itself (Debian's paraview: pvbatch;
+# xvfb for its OpenGL context): coloured by u3, in 3D over the rigid plane and
+# from above, the contact zone outlined; README shows it (docs/img).
 paraview: naghdi
 	mkdir -p $(BUILD)/paraview
 	xvfb-run -a pvbatch pipelines/paraview/render_shell.py $(BUILD)/results/naghdi-hypar.xdmf $(BUILD)/paraview/naghdi-hypar.png

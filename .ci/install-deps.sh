@@ -8,7 +8,7 @@
 # with munge and Snakemake's Slurm executor (tests/study_slurm.rs runs a study
 # on a one-node cluster, pipelines/slurm/local-cluster.sh; `ss` of iproute2
 # finds its free ports).
-# Uses sudo when not root. Rust (cargo ≥ 1.85) must already be installed.
+# Uses sudo when not root. Rust (cargo ≥ 1.89) must already be installed.
 set -euo pipefail
 packages=(gmsh freefem++ libfreefem++ libhdf5-dev hdf5-tools pkg-config build-essential
           paraview python3-paraview xvfb xauth chromium python3-venv
@@ -52,6 +52,6 @@ if [ "$(installed snakemake)" != "$snakemake_version" ] \
         "snakemake-executor-plugin-slurm-jobstep==$jobstep_version"
 fi
 if ! command -v cargo >/dev/null 2>&1; then
-    echo "error: cargo not found: install Rust (https://rustup.rs), version 1.85 or newer" >&2
+    echo "error: cargo not found: install Rust (https://rustup.rs), version 1.89 or newer" >&2
     exit 1
 fi

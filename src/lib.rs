@@ -27,6 +27,7 @@ pub mod linalg;
 pub mod mesh;
 pub mod models;
 pub mod names;
+pub mod numbers;
 pub mod output;
 pub mod pipeline;
 pub mod plot;

@@ -15,8 +15,8 @@ use obstacle_fem::pipeline::{run_scene, scene_mesh};
 use obstacle_fem::progress::progress_wanted;
 use obstacle_fem::scene::{command_line_overrides, Scene};
 use obstacle_fem::study::{
-    csv_table, history_tables, markdown_table, reference_study, rows_from_results, run_study,
-    write_convergence_plots, write_snakefile, write_work_precision, Study,
+    csv_table, history_csv, history_tables, markdown_table, reference_study, rows_from_results,
+    run_study, write_convergence_plots, write_snakefile, write_work_precision, Study,
 };
 use obstacle_fem::{out, outln};
 use std::path::{Path, PathBuf};
@@ -482,14 +482,19 @@ fn run(command: Command) -> Result<Outcome> {
             let outputs =
                 OutputTransaction::new(&out_dir, &spec.name, std::slice::from_ref(&study))?;
             let mut md = markdown_table(&spec, &rows);
+            // Every table also as CSV (`STUDY.csv`, `STUDY.history.csv`,
+            // `STUDY.reference.csv`): the index renders them.
+            let mut csvs = vec![("csv", csv_table(&spec, &rows))];
             if let Some(h) = &spec.history {
                 md.push_str(&history_tables(h, &rows));
+                csvs.push(("history.csv", history_csv(h, &rows)));
             }
             let mut plots = Vec::new();
             if let Some(r) = &spec.reference {
-                let (table, files) = reference_study(&spec, r, &rows, &outputs)?;
-                md.push_str(&table);
-                plots.extend(files);
+                let reference = reference_study(&spec, r, &rows, &outputs)?;
+                md.push_str(&reference.md);
+                csvs.push(("reference.csv", reference.csv));
+                plots.extend(reference.files);
             }
             if let Some(w) = &spec.work_precision {
                 let (table, files) = write_work_precision(&spec, w, &rows, &outputs)?;
@@ -501,7 +506,12 @@ fn run(command: Command) -> Result<Outcome> {
             }
             let table = |ext: &str| outputs.stage(&out_dir.join(format!("{}.{ext}", spec.name)));
             write_text(&table("md")?, &md)?;
-            write_text(&table("csv")?, &csv_table(&spec, &rows))?;
+            for (ext, csv) in csvs
+                .iter()
+                .filter(|(ext, csv)| *ext == "csv" || !csv.is_empty())
+            {
+                write_text(&table(ext)?, csv)?;
+            }
             outputs.commit()?;
             out!("{md}");
             for f in plots {

@@ -21,6 +21,7 @@
 
 use crate::error::{Error, Result};
 use crate::models::ExactErrors;
+use crate::output::marker::FailureMarker;
 use crate::output::{read_result, OutputTransaction};
 use crate::pipeline::{run_scene, RunSummary};
 use crate::plot;
@@ -275,11 +276,19 @@ fn run_one(
 ) -> Result<StudyRow> {
     let overrides = study.overrides(labels);
     let out = study.result_path(out_dir, i);
+    // The run's failure marker (`RUN.failed`) tells the pages (`obstacle
+    // index`) a run that failed from one whose result is older: written on
+    // a numerical failure, removed after a success.
+    let marker = FailureMarker::new(&failure_marker_path(&out), &out, &scene.input_files())?;
     let (summary, failure) = match run_scene(scene, &out, show_progress && jobs <= 1) {
-        Ok(summary) => (summary, None),
+        Ok(summary) => {
+            marker.remove_stale()?;
+            (summary, None)
+        }
         Err(e @ Error::Numerical { .. }) => {
             eprintln!("[{i}] {}: failed: {e}", overrides.join(" "));
-            (failed_summary(scene), Some(e.to_string()))
+            marker.write(&e.to_string())?;
+            (failed_summary(scene, &out), Some(e.to_string()))
         }
         Err(e) => return Err(e),
     };
@@ -300,9 +309,11 @@ fn run_one(
     })
 }
 
-/// The summary of a run that failed numerically: its scene, "failed".
-fn failed_summary(scene: &Scene) -> RunSummary {
+/// The summary of a run that failed numerically: its scene, "failed", and
+/// the result file it was to write (the CSV links the run's report page).
+fn failed_summary(scene: &Scene, out: &Path) -> RunSummary {
     RunSummary {
+        result_file: out.to_path_buf(),
         scene: scene.name.clone(),
         model: scene.model.name().into(),
         element: scene.element.name().into(),
@@ -314,7 +325,7 @@ fn failed_summary(scene: &Scene) -> RunSummary {
 /// The failure marker of a result file: `FILE.failed` beside `FILE.h5`,
 /// holding the error of a run that failed numerically (`solve --failure-marker`).
 pub fn failure_marker_path(result: &Path) -> PathBuf {
-    result.with_extension("failed")
+    crate::output::marker::marker_path(result)
 }
 
 /// The rows of a study whose runs were solved elsewhere (`--from-results`,
@@ -326,21 +337,16 @@ pub fn rows_from_results(study_path: &Path, out_dir: &Path) -> Result<Vec<StudyR
     let study = Study::load(study_path)?;
     let runs = study.runs();
     let scenes = study.run_scenes(study_path, &runs)?;
-    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
     runs.into_iter()
         .zip(scenes)
         .enumerate()
         .map(|(i, (labels, scene))| {
             let out = study.result_path(out_dir, i);
             let marker = failure_marker_path(&out);
-            let (result, failed) = (modified(&out), modified(&marker));
-            let (summary, failure) = match (result, failed) {
-                (_, Some(failed)) if result.is_none_or(|r| failed >= r) => {
-                    let text = crate::output::marker::read_marker(&marker)?;
-                    (failed_summary(&scene), Some(text))
-                }
-                (Some(_), _) => (RunSummary::from_result(&out, &scene)?, None),
-                (None, _) => {
+            let (summary, failure) = match crate::output::marker::newer_failure(&out)? {
+                Some(text) => (failed_summary(&scene, &out), Some(text)),
+                None if out.is_file() => (RunSummary::from_result(&out, &scene)?, None),
+                None => {
                     return Err(Error::output(
                         &out,
                         format!(
@@ -420,8 +426,9 @@ enum Display {
     Integer,
 }
 
-/// The heading of a column in the Markdown table.
-fn column_heading(name: &str) -> String {
+/// The heading of a column in the study's tables (Markdown, and the HTML
+/// the index renders from the CSV); other names as they are.
+pub fn column_heading(name: &str) -> String {
     let h = match name {
         "h" => "h",
         "triangles" => "#tri",
@@ -672,16 +679,58 @@ pub fn history_tables(spec: &HistoryTableSpec, rows: &[StudyRow]) -> String {
     md
 }
 
+/// The history values of [`history_tables`] as CSV: per run that did not
+/// fail, one line per iteration (the run's labels, the iteration, the
+/// columns at full precision; empty past the run's last iteration).
+pub fn history_csv(spec: &HistoryTableSpec, rows: &[StudyRow]) -> String {
+    let mut csv = String::new();
+    let Some(first) = rows.first() else {
+        return csv;
+    };
+    let mut head: Vec<String> = first.labels.iter().map(|(k, _)| k.clone()).collect();
+    head.push("iteration".into());
+    head.extend(spec.columns.iter().cloned());
+    let _ = writeln!(csv, "{}", head.join(","));
+    for row in rows.iter().filter(|r| r.failure.is_none()) {
+        for &k in &spec.iterations {
+            let mut line: Vec<String> = row
+                .labels
+                .iter()
+                .map(|(_, v)| v.replace(',', ";"))
+                .collect();
+            line.push(k.to_string());
+            line.extend(spec.columns.iter().map(|name| {
+                row.summary
+                    .history
+                    .column(name)
+                    .and_then(|c| c.get(k.wrapping_sub(1)))
+                    .map_or(String::new(), |v| format!("{v:e}"))
+            }));
+            let _ = writeln!(csv, "{}", line.join(","));
+        }
+    }
+    csv
+}
+
+/// What [`reference_study`] writes: its Markdown tables, the same numbers as
+/// CSV (`STUDY.reference.csv`), and its plots.
+pub struct ReferenceTables {
+    pub md: String,
+    pub csv: String,
+    pub files: Vec<PathBuf>,
+}
+
 /// Relative L² errors of each component against the last run of each group
 /// of the outer sweeps (the finest mesh), their least-squares rates in h,
-/// a Markdown table and one log–log plot per group.
+/// as a Markdown table and a CSV, and one log–log plot per group.
 pub fn reference_study(
     study: &Study,
     spec: &ReferenceSpec,
     rows: &[StudyRow],
     outputs: &OutputTransaction,
-) -> Result<(String, Vec<PathBuf>)> {
+) -> Result<ReferenceTables> {
     let mut md = String::new();
+    let mut csv = String::new();
     let mut files = Vec::new();
     for range in groups(rows) {
         let (start, end) = (range.start, range.end);
@@ -742,6 +791,28 @@ pub fn reference_study(
             .map(|(_, pts)| plot::loglog_slope(pts).map_or("–".into(), |k| format!("{k:.2}")))
             .collect();
         let _ = writeln!(md, "| fitted rate κ | {} |", slopes.join(" | "));
+        // The CSV: the group's labels, h (or "fitted rate"), one column per field.
+        if csv.is_empty() {
+            let mut head: Vec<String> = group.iter().map(|(k, _)| k.clone()).collect();
+            head.push("h".into());
+            head.extend(names.iter().map(|n| format!("error_{n}")));
+            let _ = writeln!(csv, "{}", head.join(","));
+        }
+        let values: Vec<String> = group.iter().map(|(_, v)| v.replace(',', ";")).collect();
+        for (h, errors) in &levels {
+            let mut line = values.clone();
+            line.push(format!("{h:e}"));
+            line.extend(errors.iter().map(|(_, e)| format!("{e:e}")));
+            let _ = writeln!(csv, "{}", line.join(","));
+        }
+        let mut line = values.clone();
+        line.push("fitted rate κ".into());
+        line.extend(
+            series.iter().map(|(_, pts)| {
+                plot::loglog_slope(pts).map_or(String::new(), |k| format!("{k:e}"))
+            }),
+        );
+        let _ = writeln!(csv, "{}", line.join(","));
         let path = outputs
             .folder()
             .join(format!("{}-reference-{}.png", study.name, files.len()));
@@ -750,12 +821,37 @@ pub fn reference_study(
             &series,
             "h",
             "relative L² error",
-            &format!("{}: errors against h = {:.3}", study.name, reference.h),
+            &reference_title(study, &rows[end - 1], &label),
             &[0.5, 1.0, 2.0],
         )?;
         files.push(path);
     }
-    Ok((md, files))
+    Ok(ReferenceTables { md, csv, files })
+}
+
+/// The title of a reference plot: what is measured against which run, e.g.
+/// "naghdi-refinement: relative L² errors against the finest mesh (mesh.n =
+/// 128, h = 1.105)", with the group's labels where the study has outer sweeps.
+fn reference_title(study: &Study, finest: &StudyRow, group: &[String]) -> String {
+    let mut finest_is: Vec<String> = finest
+        .labels
+        .last()
+        .map(|(k, v)| format!("{k} = {v}"))
+        .into_iter()
+        .collect();
+    finest_is.push(format!(
+        "h = {}",
+        crate::numbers::meaningful(finest.summary.h, 4)
+    ));
+    let mut title = format!(
+        "{}: relative L² errors against the finest mesh ({})",
+        study.name,
+        finest_is.join(", ")
+    );
+    if !group.is_empty() {
+        title = format!("{title}, {}", group.join(", "));
+    }
+    title
 }
 
 /// Work–precision figures (`<out_dir>/<study>-work-precision-<attribute>.png`):
@@ -866,12 +962,21 @@ pub fn write_convergence_plots(
                 outputs
                     .folder()
                     .join(format!("{}-convergence-{}.png", study.name, files.len()));
+            let title = if label.is_empty() {
+                format!("{}: errors against the exact solution", study.name)
+            } else {
+                format!(
+                    "{}: errors against the exact solution, {}",
+                    study.name,
+                    label.join(", ")
+                )
+            };
             plot::plot_convergence(
                 &outputs.stage(&path)?,
                 &series,
                 "h",
                 "error",
-                &format!("{} {}", study.name, label.join(", ")),
+                &title,
                 &[1.0, 2.0],
             )?;
             files.push(path);

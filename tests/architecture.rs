@@ -156,7 +156,7 @@ fn output_and_plots_know_no_scenes_or_models() {
     );
     assert_none(
         "plot/ draws arrays on a mesh",
-        only_imports("plot/", &["error", "mesh", "solvers", "output"]),
+        only_imports("plot/", &["error", "mesh", "solvers", "output", "numbers"]),
     );
 }
 

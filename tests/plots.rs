@@ -333,7 +333,7 @@ fn convergence_loglog() {
         let text = std::fs::read(&path).unwrap();
         if ext == "svg" {
             let text = String::from_utf8(text).unwrap();
-            assert!(text.contains("h^1") && text.contains("h^2"));
+            assert!(text.contains("h¹") && text.contains("h²"));
         }
     }
     let path = out.dir.join("convergence_empty.svg");

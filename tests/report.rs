@@ -1,11 +1,14 @@
-//! Report pages (issue 15, item 3): `obstacle report RESULT.h5` holds the run's
-//! numbers as the file has them and shows every plot beside it, which headless
-//! Chromium (Debian `chromium`) must load; `obstacle index` links every table,
-//! figure and result. The Chromium test fails, never skips, when chromium is
-//! missing: `.ci/install-deps.sh` installs it.
+//! Report pages (issues 15 and 46): `obstacle report RESULT.h5` shows the run's
+//! status first, its numbers with meaningful digits and every plot beside it,
+//! which headless Chromium (Debian `chromium`) must load; `obstacle index`
+//! gives every run's status (a failed run as failed, with its reason), every
+//! study table rendered from its CSV, every figure as a thumbnail, and a
+//! report page per run. The Chromium tests fail, never skip, when chromium
+//! is missing: `.ci/install-deps.sh` installs it.
 
 mod common;
 use common::{assert_one_error, check_success, run_obstacle, solve_scene, solver_attr};
+use obstacle_fem::numbers::meaningful;
 use obstacle_fem::output::{read_result, AttrValue};
 use std::path::Path;
 use std::process::Command;
@@ -20,12 +23,11 @@ fn solve_disk(dir: &Path) -> std::path::PathBuf {
     result
 }
 
-/// The page's title after Chromium loaded `page` with a script that counts
-/// the images loaded (`complete` and a natural width): "loaded K of N".
-fn images_loaded_in_chromium(page: &Path, profile: &Path) -> String {
+/// The page's title after Chromium loaded `page` with `script` (run on the
+/// window's `load` event, setting `document.title`).
+fn title_in_chromium(page: &Path, profile: &Path, script: &str) -> String {
     let html = std::fs::read_to_string(page).unwrap();
-    let script = "<script>window.addEventListener('load', () => { const all = [...document.images]; \
-        document.title = 'loaded ' + all.filter(i => i.complete && i.naturalWidth > 0).length + ' of ' + all.length; });</script>";
+    let script = format!("<script>window.addEventListener('load', () => {{ {script} }});</script>");
     let checked = page.with_file_name("chromium-check.html");
     std::fs::write(
         &checked,
@@ -50,8 +52,49 @@ fn images_loaded_in_chromium(page: &Path, profile: &Path) -> String {
     title.unwrap_or_else(|| panic!("no <title> in Chromium's DOM:\n{dom}"))
 }
 
+/// The images Chromium loaded (`complete` and a natural width) on `page`:
+/// "loaded K of N".
+fn images_loaded_in_chromium(page: &Path, profile: &Path) -> String {
+    title_in_chromium(
+        page,
+        profile,
+        "const all = [...document.images]; \
+         document.title = 'loaded ' + all.filter(i => i.complete && i.naturalWidth > 0).length + ' of ' + all.length;",
+    )
+}
+
+/// A screenshot of `page` by headless Chromium into `png`: a PNG of the
+/// window's size.
+fn screenshot(page: &Path, profile: &Path, png: &Path) {
+    let out = Command::new("chromium")
+        .args([
+            "--headless",
+            "--disable-gpu",
+            "--no-sandbox",
+            "--hide-scrollbars",
+        ])
+        .args(["--window-size=1280,1600", "--virtual-time-budget=10000"])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(format!("--screenshot={}", png.display()))
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .unwrap();
+    check_success("chromium --screenshot", &out);
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(png).unwrap()));
+    let info = decoder.read_info().unwrap().info().clone();
+    assert_eq!((info.width, info.height), (1280, 1600), "screenshot size");
+}
+
+/// Whether `text` holds a number written with more than 6 decimals (a raw
+/// f64 such as `0.30936923800000005`).
+fn has_raw_float(text: &str) -> bool {
+    let b = text.as_bytes();
+    (0..b.len())
+        .any(|i| b[i] == b'.' && b[i + 1..].iter().take_while(|c| c.is_ascii_digit()).count() > 6)
+}
+
 #[test]
-fn report_holds_the_runs_numbers_and_chromium_loads_every_plot() {
+fn report_shows_the_status_first_and_the_numbers_rounded_and_chromium_loads_every_plot() {
     let dir = tempfile::tempdir().unwrap();
     let result = solve_disk(dir.path());
     let o = run_obstacle(&["report", result.to_str().unwrap()]);
@@ -59,27 +102,52 @@ fn report_holds_the_runs_numbers_and_chromium_loads_every_plot() {
     let page = dir.path().join("disk.html");
     let html = std::fs::read_to_string(&page).unwrap();
 
-    // The numbers as the file has them (AttrValue's text, strings unquoted).
+    // The status comes first, before any table.
+    let status = html.find(
+        "<p class=\"status converged\" id=\"status\"><strong>converged</strong>: KKT measure ",
+    );
+    let first_table = html.find("<table");
+    assert!(
+        status.is_some() && status < first_table,
+        "no status line before the tables:\n{html}"
+    );
+    // The numbers with meaningful digits, grouped.
     let file = read_result(&result).unwrap();
-    for name in [
-        "iterations",
-        "kkt",
-        "converged",
-        "stop_reason",
-        "penetration",
-        "complementarity",
+    for (name, group) in [
+        ("kkt", "KKT measures"),
+        ("penetration", "KKT measures"),
+        ("complementarity", "KKT measures"),
+        ("stability_bound", "Solver"),
+        ("tol", "Solver"),
     ] {
-        let value = match solver_attr(&file, name) {
-            AttrValue::Str(s) => s.clone(),
-            v => v.to_string(),
+        let AttrValue::F64(v) = solver_attr(&file, name) else {
+            panic!("{name} is no number")
         };
-        let row = format!("<tr><th>{name}</th><td>{value}</td></tr>");
-        assert!(html.contains(&row), "no row {row} in the page");
+        let row = format!(
+            "<span class=\"key\">{name}</span></th><td>{}</td></tr>",
+            meaningful(*v, 4)
+        );
+        let at = html
+            .find(&row)
+            .unwrap_or_else(|| panic!("no row {row} in the page"));
+        let heading = html[..at].rfind("<h2>").unwrap();
+        assert!(
+            html[heading..].starts_with(&format!("<h2>{group}</h2>")),
+            "{name} not under {group}"
+        );
     }
     let AttrValue::I64(iterations) = solver_attr(&file, "iterations") else {
         panic!("iterations is no integer")
     };
-    assert!(*iterations > 0);
+    assert!(html.contains(&format!(
+        "<tr><th>iterations</th><td>{iterations}</td></tr>"
+    )));
+    assert!(html.contains(&format!("after {iterations} iterations</p>")));
+    assert!(html.contains("<span class=\"key\">wall_seconds</span></th><td>"));
+    assert!(
+        html.contains(" ms</td>") || html.contains(" s</td>"),
+        "times with their unit"
+    );
     assert!(
         html.contains("<tr><th>triangles</th><td>62</td></tr>"),
         "mesh counts"
@@ -89,12 +157,33 @@ fn report_holds_the_runs_numbers_and_chromium_loads_every_plot() {
         "model"
     );
     assert!(
-        html.contains("<tr><th>contact_radius</th>"),
+        html.contains("<span class=\"key\">contact_radius</span>"),
         "key number contact_radius"
     );
-    // The scene as run, escaped.
+    for group in [
+        "Problem",
+        "Mesh",
+        "Solver",
+        "KKT measures",
+        "Timing",
+        "Memory",
+        "Plots",
+    ] {
+        assert!(
+            html.contains(&format!("<h2>{group}</h2>")),
+            "no group {group}"
+        );
+    }
+    // The numbers the page prints (the scene below is the file's text).
+    let numbers = &html[..html.find("<h2>Scene as run</h2>").unwrap()];
     assert!(
-        html.contains("name = &quot;obstacle-disk&quot;"),
+        !has_raw_float(numbers),
+        "a raw float in the page:\n{numbers}"
+    );
+    assert!(!numbers.contains(">-0<"), "-0 in the page");
+    // The scene as run, escaped (askama: `"` as `&#34;`).
+    assert!(
+        html.contains("name = &#34;obstacle-disk&#34;"),
         "scene text"
     );
 
@@ -127,25 +216,150 @@ fn report_holds_the_runs_numbers_and_chromium_loads_every_plot() {
     );
 }
 
+/// A study over the disk (n = 8) whose first run diverges (α = 30, above the
+/// stability bound ≈ 11.6) and whose second converges, in `build/studies`;
+/// the disk with its plots in `build/results`.
+fn build_with_a_failed_run(build: &Path) {
+    let results = build.join("results");
+    let studies = build.join("studies");
+    std::fs::create_dir_all(&results).unwrap();
+    solve_disk(&results);
+    let scene = common::manifest_path("pipelines/scenes/obstacle-disk.toml");
+    let study = build.join("alpha-sweep.toml");
+    std::fs::write(
+        &study,
+        format!(
+            "name = \"alpha-sweep\"\ntitle = \"Disk: α above and below the <stability> bound\"\n\
+             scene = {:?}\nset = [\"mesh.n=8\", \"output.plots=[]\"]\n\
+             [[sweep]]\nkey = \"solver.alpha\"\nvalues = [30.0, 11.0]\n",
+            scene.display().to_string()
+        ),
+    )
+    .unwrap();
+    let o = run_obstacle(&[
+        "study",
+        study.to_str().unwrap(),
+        "--out-dir",
+        studies.to_str().unwrap(),
+        "--quiet",
+    ]);
+    check_success("study with a diverging run", &o);
+    check_success("index", &run_obstacle(&["index", build.to_str().unwrap()]));
+}
+
+/// The failed run of a study: its marker, its line and table row marked
+/// failed with the reason, its report page saying so first.
 #[test]
-fn index_links_every_table_figure_and_result_with_one_line_each() {
+fn a_failed_run_shows_as_failed_in_the_index_and_its_report() {
+    let build = tempfile::tempdir().unwrap();
+    build_with_a_failed_run(build.path());
+    let studies = build.path().join("studies");
+    assert!(
+        studies.join("alpha-sweep-000.failed").is_file(),
+        "no failure marker"
+    );
+    assert!(!studies.join("alpha-sweep-000.h5").exists());
+    let html = std::fs::read_to_string(build.path().join("index.html")).unwrap();
+    assert!(
+        html.contains("<p class=\"status failed\" id=\"status\"><strong>3 runs: 2 converged, 1 failed</strong></p>"),
+        "overall status:\n{html}"
+    );
+    assert!(html.contains("<li><span class=\"badge failed\">failed</span> <a href=\"studies/alpha-sweep-000.html\">alpha-sweep-000 (Disk: α above and below the &#60;stability&#62; bound: solver.alpha = 30.0)</a></li>"), "{html}");
+    // The run's line: failed, with the reason.
+    let line = html
+        .split("<tr class=\"failed\">")
+        .find(|l| {
+            l.contains(
+                "<td class=\"name\"><a href=\"studies/alpha-sweep-000.html\">alpha-sweep-000</a>",
+            )
+        })
+        .unwrap_or_else(|| panic!("no failed line of alpha-sweep-000:\n{html}"));
+    let line = line.split("</tr>").next().unwrap();
+    assert!(line.contains("diverged at iteration"), "{line}");
+    // The table row: failed, linked to the report page.
+    assert!(
+        html.contains("<tr class=\"failed\"><td><span class=\"badge failed\">failed</span></td><td class=\"num\">30</td>"),
+        "the table's failed row:\n{html}"
+    );
+    let page = std::fs::read_to_string(studies.join("alpha-sweep-000.html")).unwrap();
+    let status = page.find("<p class=\"status failed\" id=\"status\"><strong>failed</strong>: ");
+    assert!(status.is_some(), "{page}");
+    assert!(page.contains("diverged at iteration"), "{page}");
+    let converged = std::fs::read_to_string(studies.join("alpha-sweep-001.html")).unwrap();
+    assert!(converged.contains("<p class=\"status converged\" id=\"status\">"));
+
+    // A rerun that converges removes the marker: the run is no longer failed.
+    std::fs::remove_file(studies.join("alpha-sweep-000.failed")).unwrap();
+    check_success(
+        "index",
+        &run_obstacle(&["index", build.path().to_str().unwrap()]),
+    );
+    let html = std::fs::read_to_string(build.path().join("index.html")).unwrap();
+    assert!(
+        html.contains("<strong>2 runs: 2 converged</strong>"),
+        "{html}"
+    );
+}
+
+/// Headless Chromium on the index and a report page: the status line, the
+/// rendered tables and their rows, every image loaded; and screenshots.
+#[test]
+fn chromium_shows_the_index_and_a_report_with_status_tables_and_images() {
+    let build = tempfile::tempdir().unwrap();
+    build_with_a_failed_run(build.path());
+    let profile = tempfile::tempdir().unwrap();
+    let index = build.path().join("index.html");
+    let summary = "const imgs = [...document.images]; \
+        const loaded = imgs.filter(i => i.complete && i.naturalWidth > 0).length; \
+        const tables = [...document.querySelectorAll('table.study')]; \
+        const rows = tables.map(t => t.rows.length - 1).join('+'); \
+        const failed = document.querySelectorAll('table.study tr.failed').length; \
+        const status = document.getElementById('status').innerText; \
+        document.title = status + ' | tables ' + tables.length + ' (' + rows + ' rows, ' + failed + ' failed)' + ' | images ' + loaded + ' of ' + imgs.length;";
+    assert_eq!(
+        title_in_chromium(&index, profile.path(), summary),
+        "3 runs: 2 converged, 1 failed | tables 1 (2 rows, 1 failed) | images 4 of 4"
+    );
+    let report = build.path().join("results").join("disk.html");
+    let status = "const imgs = [...document.images]; \
+        const loaded = imgs.filter(i => i.complete && i.naturalWidth > 0).length; \
+        const status = document.getElementById('status'); \
+        const top = status.getBoundingClientRect().top < document.querySelector('table').getBoundingClientRect().top; \
+        document.title = status.className + ' | ' + (top ? 'first' : 'below') + ' | ' + document.querySelectorAll('h2').length + ' sections | images ' + loaded + ' of ' + imgs.length;";
+    assert_eq!(
+        title_in_chromium(&report, profile.path(), status),
+        "status converged | first | 8 sections | images 4 of 4"
+    );
+    let failed = build.path().join("studies").join("alpha-sweep-000.html");
+    let first_word = "document.title = document.getElementById('status').className + ': ' + document.querySelector('#status strong').innerText;";
+    assert_eq!(
+        title_in_chromium(&failed, profile.path(), first_word),
+        "status failed: failed"
+    );
+    for (page, png) in [(&index, "index.png"), (&report, "report.png")] {
+        screenshot(page, profile.path(), &build.path().join(png));
+    }
+}
+
+#[test]
+fn index_lists_every_run_table_and_figure_with_one_line_each() {
     let build = tempfile::tempdir().unwrap();
     let results = build.path().join("results");
     let studies = build.path().join("studies").join("sub");
     std::fs::create_dir_all(&results).unwrap();
     std::fs::create_dir_all(&studies).unwrap();
-    let result = solve_disk(&results);
-    check_success(
-        "report",
-        &run_obstacle(&["report", result.to_str().unwrap()]),
-    );
+    solve_disk(&results);
     std::fs::write(
         studies.join("my-study.md"),
         "## A study of <things>\n\n| a |\n",
     )
     .unwrap();
-    std::fs::write(studies.join("my-study.csv"), "a\n1\n").unwrap();
-    std::fs::write(studies.join("membrane-thesis.csv"), "a\n1\n").unwrap();
+    std::fs::write(
+        studies.join("my-study.csv"),
+        "mesh.h,iterations,kkt,converged,result_file\n0.4,26133,0.30936923800000005,true,x/my-study-003.h5\n",
+    )
+    .unwrap();
+    std::fs::write(studies.join("membrane-thesis.csv"), "a\n-0.0\n").unwrap();
     std::fs::write(studies.join("my-study-003.h5"), "").unwrap();
     std::fs::write(studies.join("my-study-convergence-0.png"), "").unwrap();
     // A run under way (hidden staging folder) and other files are not listed.
@@ -155,34 +369,49 @@ fn index_links_every_table_figure_and_result_with_one_line_each() {
     let o = run_obstacle(&["index", build.path().to_str().unwrap()]);
     check_success("index", &o);
     let html = std::fs::read_to_string(build.path().join("index.html")).unwrap();
-    for line in [
-        "<li><a href=\"results/disk.h5\">disk.h5</a> (<a href=\"results/disk.html\">report</a>): result</li>",
-        "<li><a href=\"results/disk.u.png\">disk.u.png</a>: figure u of disk</li>",
-        "<li><a href=\"results/disk.history.png\">disk.history.png</a>: figure history of disk</li>",
-        "<li><a href=\"studies/sub/my-study.md\">my-study.md</a>: table: A study of &lt;things&gt;</li>",
-        "<li><a href=\"studies/sub/my-study.csv\">my-study.csv</a>: table: A study of &lt;things&gt;</li>",
-        "<li><a href=\"studies/sub/my-study-003.h5\">my-study-003.h5</a>: result 003 of: A study of &lt;things&gt;</li>",
-        "<li><a href=\"studies/sub/my-study-convergence-0.png\">my-study-convergence-0.png</a>: figure convergence-0 of: A study of &lt;things&gt;</li>",
-        "<li><a href=\"studies/sub/membrane-thesis.csv\">membrane-thesis.csv</a>: table: membrane, both pairs, h = 0.8 … 0.1, α = 0.9, 1.9, auto (thesis Tables 5.1–5.4)</li>",
+    for part in [
+        // Runs: status, report page, result file.
+        "<tr class=\"converged\"><td><span class=\"badge converged\"",
+        "<a href=\"results/disk.html\">disk</a> <a class=\"note\" href=\"results/disk.h5\">.h5</a>",
+        "<a href=\"studies/sub/my-study-003.html\">my-study-003</a>",
+        "<span class=\"badge unreadable\"",
+        // Tables from the CSV: headings as the Markdown names them, numbers
+        // with meaningful digits, integers exact, the run's report linked.
+        "<h3 id=\"table-membrane-thesis\">membrane, both pairs, h = 0.8 … 0.1, α = 0.9, 1.9, auto (thesis Tables 5.1–5.4)</h3>",
+        "<h3 id=\"table-my-study\">A study of &#60;things&#62;</h3>",
+        "<th>iter</th><th>KKT</th>",
+        "<td class=\"num\">0.4</td><td class=\"num\">26133</td><td class=\"num\">0.3094</td><td>yes</td><td><a href=\"studies/sub/my-study-003.html\">my-study-003</a></td>",
+        "<td class=\"num\">0</td>",
+        // Figures as thumbnails linking to their full size.
+        "<figure><a href=\"results/disk.u.png\"><img src=\"results/disk.u.png\" alt=\"figure u of disk\"></a>",
+        "<img src=\"studies/sub/my-study-convergence-0.png\" alt=\"figure convergence-0 of: A study of &#60;things&#62;\">",
     ] {
-        assert!(html.contains(line), "no line {line} in the index:\n{html}");
+        assert!(html.contains(part), "no {part} in the index:\n{html}");
     }
+    // The thesis table comes first, whatever the file order.
+    assert!(html.find("table-membrane-thesis") < html.find("table-my-study"));
     assert_eq!(
-        html.matches("<li>").count(),
-        10,
-        "4 plots, 1 result, 3 tables, a study's run and plot: {html}"
+        html.matches("<figure>").count(),
+        5,
+        "4 plots and a study's: {html}"
     );
+    assert_eq!(html.matches("<table class=\"study\">").count(), 2, "{html}");
     assert!(!html.contains("obstacle-tmp"), "a staging folder is listed");
-    // `make` twice: both pages are rewritten over the previous run's.
-    for args in [
-        vec!["report", result.to_str().unwrap()],
-        vec!["index", build.path().to_str().unwrap()],
-    ] {
-        check_success("a second report/index over the first", &run_obstacle(&args));
-    }
     assert!(
         !html.contains("disk.xdmf"),
-        "only tables, figures and results are listed"
+        "only tables, figures and runs are listed"
+    );
+    // A report page beside every run, the unreadable one included.
+    let page = std::fs::read_to_string(results.join("disk.html")).unwrap();
+    assert!(
+        page.contains("<a href=\"../index.html\">all outputs</a>"),
+        "{page}"
+    );
+    assert!(studies.join("my-study-003.html").is_file());
+    // `make` twice: every page is rewritten over the previous run's.
+    check_success(
+        "a second index over the first",
+        &run_obstacle(&["index", build.path().to_str().unwrap()]),
     );
 }
 
@@ -288,7 +517,7 @@ fn index_skips_fifos_and_never_blocks() {
     assert!(status.success());
     let html = std::fs::read_to_string(build.path().join("index.html")).unwrap();
     assert!(
-        html.contains("<li><a href=\"studies/piped-000.h5\">piped-000.h5</a>: result</li>"),
+        html.contains("<a href=\"studies/piped-000.html\">piped-000</a> <a class=\"note\" href=\"studies/piped-000.h5\">.h5</a>"),
         "{html}"
     );
     assert!(

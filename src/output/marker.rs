@@ -122,6 +122,24 @@ pub fn read_marker(path: &Path) -> Result<String> {
     Ok(error.strip_suffix('\n').unwrap_or(error).to_string())
 }
 
+/// The failure marker of a result file: `RUN.failed` beside `RUN.h5`.
+pub fn marker_path(result: &Path) -> PathBuf {
+    result.with_extension("failed")
+}
+
+/// The error of the run that was to write `result`, when its marker says it
+/// failed: the marker exists and is not older than the result file (a failed
+/// rerun leaves the earlier result in place). None when the run's last
+/// outcome is the result file, or neither file exists.
+pub fn newer_failure(result: &Path) -> Result<Option<String>> {
+    let marker = marker_path(result);
+    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    match (modified(result), modified(&marker)) {
+        (r, Some(failed)) if r.is_none_or(|r| failed >= r) => read_marker(&marker).map(Some),
+        _ => Ok(None),
+    }
+}
+
 /// `path` with its folder resolved (symlinks, `..`) when the folder exists.
 fn resolve(path: &Path) -> PathBuf {
     let name = path.file_name().map(PathBuf::from).unwrap_or_default();

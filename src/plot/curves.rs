@@ -230,6 +230,10 @@ pub(super) fn quiet_corner(
     let mut hidden = [0usize; 4];
     let mut count = |(px, py): (f64, f64)| {
         let (u, v) = (unit(px, x), unit(py, y));
+        // A point off the plot (a reference line's clipped part) hides nothing.
+        if !(0.0..=1.0).contains(&u) || !(0.0..=1.0).contains(&v) {
+            return;
+        }
         let (right, left, top, bottom) = (u >= 1.0 - fx, u <= fx, v >= 1.0 - fy, v <= fy);
         for (k, inside) in [right && top, left && top, right && bottom, left && bottom]
             .into_iter()
@@ -317,7 +321,15 @@ impl Figure for HistoryFigure<'_> {
             x0 -= 1.0;
             x1 += 1.0;
         }
-        let (ylo, yhi) = log_range(y0, y1);
+        let mut y_range = log_range(y0, y1);
+        let legend = place_log_legend(
+            root,
+            (&self.curves, self.curves.len()),
+            "no positive value",
+            ((x0, x1), false),
+            &mut y_range,
+        )?;
+        let (ylo, yhi) = y_range;
         let (y_bold, y_light) = log_ticks(ylo, yhi);
         let span = x1 - x0;
         let integer = self.x_is_integer;
@@ -341,13 +353,13 @@ impl Figure for HistoryFigure<'_> {
                 .log_scale()
                 .with_key_points(y_bold)
                 .with_light_points(y_light),
-            (&x_format, &|v| fmt_log_tick(*v)),
+            (&x_format, &|v| fmt_log_tick(*v, (ylo, yhi))),
         )?;
         draw_curves(&mut chart, &self.curves, "no positive value")?;
         finish_chart(
             &mut chart,
             root,
-            (!self.curves.is_empty()).then_some(SeriesLabelPosition::UpperRight),
+            legend,
             empty.then_some("no positive value to plot"),
         )
     }
@@ -360,8 +372,8 @@ pub(super) struct ConvergenceFigure<'a> {
 }
 
 pub(super) fn slope_label(p: f64) -> String {
-    if p.fract() == 0.0 {
-        format!("h^{}", p as i64)
+    if p.fract() == 0.0 && p.abs() < 100.0 {
+        format!("h{}", crate::numbers::superscript(p as i32))
     } else {
         format!("h^{}", fmt_sig(p, 3))
     }
@@ -395,7 +407,42 @@ impl Figure for ConvergenceFigure<'_> {
             y0 = y0.min(ya);
         }
         let (xlo, xhi) = log_range(x0, x1);
-        let (ylo, yhi) = log_range(y0, y1);
+        let labels: Vec<String> = self
+            .series
+            .iter()
+            .map(|(name, pts)| match loglog_slope(pts) {
+                Some(s) => format!("{name} (slope {s:.2})"),
+                None if pts.is_empty() => format!("{name} (no positive point)"),
+                None => name.clone(),
+            })
+            .collect();
+        // The legend in a corner where it hides no point of the curves or
+        // of the reference lines, else above them.
+        let mut measured: Vec<Curve> = self
+            .series
+            .iter()
+            .zip(&labels)
+            .map(|((name, pts), label)| {
+                let name = if pts.is_empty() { name } else { label };
+                (name.clone(), pts.iter().copied().map(Some).collect())
+            })
+            .collect();
+        let in_legend = measured.len();
+        if let Some((xa, ya)) = anchor.filter(|_| x1 > x0) {
+            for &p in self.slopes {
+                let at = |x: f64| Some((x, ya * (x / xa).powf(p)));
+                measured.push((String::new(), vec![at(x0), at(x1)]));
+            }
+        }
+        let mut y_range = log_range(y0, y1);
+        let legend = place_log_legend(
+            root,
+            (&measured, in_legend),
+            "no positive point",
+            ((xlo, xhi), true),
+            &mut y_range,
+        )?;
+        let (ylo, yhi) = y_range;
         let (x_bold, x_light) = log_ticks(xlo, xhi);
         let (y_bold, y_light) = log_ticks(ylo, yhi);
         let mut chart = curve_chart(
@@ -409,7 +456,9 @@ impl Figure for ConvergenceFigure<'_> {
                 .log_scale()
                 .with_key_points(y_bold)
                 .with_light_points(y_light),
-            (&|v| fmt_log_tick(*v), &|v| fmt_log_tick(*v)),
+            (&|v| fmt_log_tick(*v, (xlo, xhi)), &|v| {
+                fmt_log_tick(*v, (ylo, yhi))
+            }),
         )?;
         if let Some((xa, ya)) = anchor {
             let grey = RGBColor(90, 90, 90);
@@ -447,13 +496,8 @@ impl Figure for ConvergenceFigure<'_> {
                 ))?;
             }
         }
-        for (k, (name, pts)) in self.series.iter().enumerate() {
+        for (k, ((_, pts), label)) in self.series.iter().zip(labels).enumerate() {
             let c = PALETTE[k % PALETTE.len()];
-            let label = match loglog_slope(pts) {
-                Some(s) => format!("{name} (slope {s:.2})"),
-                None if pts.is_empty() => format!("{name} (no positive point)"),
-                None => name.clone(),
-            };
             chart
                 .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))?
                 .label(label)
@@ -467,7 +511,7 @@ impl Figure for ConvergenceFigure<'_> {
         finish_chart(
             &mut chart,
             root,
-            (!self.series.is_empty()).then_some(SeriesLabelPosition::UpperLeft),
+            legend,
             empty.then_some("no positive point to plot"),
         )
     }
@@ -487,9 +531,8 @@ pub(super) fn span((lo, hi): (f64, f64)) -> f64 {
 }
 
 impl LinesFigure<'_> {
-    /// Where the legend goes: a corner of the plot over `x` × `y` where it
-    /// hides no curve point, else the upper right with the top of `y` raised
-    /// so that the curves stay below it. None without curves.
+    /// Where the legend goes ([`place_legend`]), with the y label area the
+    /// chart will have. None without curves.
     fn place_legend<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, Shift>,
@@ -499,23 +542,88 @@ impl LinesFigure<'_> {
     where
         DB::ErrorType: 'static,
     {
-        if self.curves.is_empty() {
-            return Ok(None);
-        }
         let y_span = span(*y);
         let y_format = |v: &f64| fmt_tick(*v, y_span);
         let y_area = y_label_area(root, &RangedCoordf64::from(y.0..y.1), &y_format)?;
-        let (pw, ph) = curve_plot_px(root, y_area);
-        let (lw, lh) = legend_px(root, &self.curves, NO_FINITE_POINT)?;
-        let (fx, fy) = ((lw / pw).min(1.0), (lh / ph).min(0.6));
-        let (corner, hidden) = quiet_corner(&self.curves, x, *y, (fx, fy));
-        if hidden == 0 {
-            return Ok(Some(corner));
-        }
-        // The old top at 1 − fy of the new height.
-        y.1 = ((y.1 - fy * y.0) / (1.0 - fy)).min(f64::MAX);
-        Ok(Some(SeriesLabelPosition::UpperRight))
+        place_legend(
+            root,
+            (&self.curves, self.curves.len()),
+            NO_FINITE_POINT,
+            x,
+            y,
+            y_area,
+        )
     }
+}
+
+/// Where the legend of the first `in_legend` of `curves` goes on a plot over
+/// `x` × `y` (in the plot's linear coordinates: log10 of a log axis) with a
+/// y label area of `y_area` pixels: a corner where it hides no point of any
+/// of `curves`, else the upper right with the top of `y` raised so that the
+/// curves stay below it. None without curves in the legend.
+pub(super) fn place_legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    (curves, in_legend): (&[Curve], usize),
+    no_point: &str,
+    x: (f64, f64),
+    y: &mut (f64, f64),
+    y_area: u32,
+) -> DrawResult<Option<SeriesLabelPosition>>
+where
+    DB::ErrorType: 'static,
+{
+    if in_legend == 0 {
+        return Ok(None);
+    }
+    let (pw, ph) = curve_plot_px(root, y_area);
+    let (lw, lh) = legend_px(root, &curves[..in_legend], no_point)?;
+    let (fx, fy) = ((lw / pw).min(1.0), (lh / ph).min(0.6));
+    let (corner, hidden) = quiet_corner(curves, x, *y, (fx, fy));
+    if hidden == 0 {
+        return Ok(Some(corner));
+    }
+    // The old top at 1 − fy of the new height.
+    y.1 = ((y.1 - fy * y.0) / (1.0 - fy)).min(f64::MAX);
+    Ok(Some(SeriesLabelPosition::UpperRight))
+}
+
+/// [`place_legend`] on log–log or lin–log axes: the curves and ranges
+/// in log10 where `log_x` (the y axis is always log), the raised top back
+/// in the data's units.
+pub(super) fn place_log_legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    (curves, in_legend): (&[Curve], usize),
+    no_point: &str,
+    (x, log_x): ((f64, f64), bool),
+    y: &mut (f64, f64),
+) -> DrawResult<Option<SeriesLabelPosition>>
+where
+    DB::ErrorType: 'static,
+{
+    let lx = |v: f64| if log_x { v.log10() } else { v };
+    let in_log: Vec<Curve> = curves
+        .iter()
+        .map(|(name, pts)| {
+            let pts = pts
+                .iter()
+                .map(|p| p.filter(|&(a, b)| (a > 0.0 || !log_x) && b > 0.0))
+                .map(|p| p.map(|(a, b)| (lx(a), b.log10())))
+                .collect();
+            (name.clone(), pts)
+        })
+        .collect();
+    let mut ly = (y.0.log10(), y.1.log10());
+    // The tick labels of a log axis are short (`10⁻³`, `0.05`).
+    let corner = place_legend(
+        root,
+        (&in_log, in_legend),
+        no_point,
+        (lx(x.0), lx(x.1)),
+        &mut ly,
+        Y_LABEL_AREA + 24,
+    )?;
+    y.1 = 10f64.powf(ly.1);
+    Ok(corner)
 }
 
 impl Figure for LinesFigure<'_> {

@@ -169,8 +169,12 @@ where
     const TICKS_W: i32 = 80;
     let (w, h) = panel.dim_in_pixel();
     let (w, h) = (w as i32, h as i32);
-    let bar_top = top + 34;
-    let bar_bottom = (bottom - 34).max(bar_top + 40);
+    // The max/min lines sit HEADER_GAP pixels off the bar's ends: more than
+    // half a tick label's height (16 px font), so the label of the end tick
+    // never touches them.
+    const HEADER_GAP: i32 = 18;
+    let bar_top = top + 44;
+    let bar_bottom = (bottom - 44).max(bar_top + 40);
     let area = panel.margin(
         bar_top,
         (h - bar_bottom).max(0),
@@ -209,12 +213,12 @@ where
     let small = |pos| text_style(16.0, pos);
     panel.draw(&Text::new(
         format!("max {}", fmt_sig(vmax, 4)),
-        (LEFT, bar_top - 10),
+        (LEFT, bar_top - HEADER_GAP),
         small(Pos::new(HPos::Left, VPos::Bottom)),
     ))?;
     panel.draw(&Text::new(
         format!("min {}", fmt_sig(vmin, 4)),
-        (LEFT, bar_bottom + 10),
+        (LEFT, bar_bottom + HEADER_GAP),
         small(Pos::new(HPos::Left, VPos::Top)),
     ))?;
     Ok(())

@@ -4,35 +4,11 @@
 use super::*;
 use crate::mesh::signed_area;
 
-/// `v` with `sig` significant digits, trailing zeros trimmed; scientific
-/// notation outside [1e-3, 1e5).
+/// `v` with at most `sig` significant digits: the pages' rule
+/// ([`crate::numbers::meaningful`]), so a figure and its report page print
+/// a number alike.
 pub(super) fn fmt_sig(v: f64, sig: usize) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return if v == 0.0 { "0".into() } else { format!("{v}") };
-    }
-    let e = v.abs().log10().floor() as i32;
-    let trim = |s: String| -> String {
-        if s.contains('.') {
-            s.trim_end_matches('0').trim_end_matches('.').to_string()
-        } else {
-            s
-        }
-    };
-    if (-3..5).contains(&e) {
-        let decimals = (sig as i32 - 1 - e).max(0) as usize;
-        let s = trim(format!("{v:.decimals$}"));
-        if s == "-0" {
-            "0".into()
-        } else {
-            s
-        }
-    } else {
-        let s = format!("{:.*e}", sig.saturating_sub(1), v);
-        match s.split_once('e') {
-            Some((m, ex)) => format!("{}e{ex}", trim(m.to_string())),
-            None => s,
-        }
-    }
+    crate::numbers::meaningful(v, sig)
 }
 
 /// A linear-axis tick label: values tiny against the axis span are 0; at
@@ -52,36 +28,17 @@ pub(super) fn fmt_tick(v: f64, span: f64) -> String {
     }
 }
 
-pub(super) fn superscript(n: i32) -> String {
-    n.to_string()
-        .chars()
-        .map(|c| match c {
-            '-' => '⁻',
-            '0' => '⁰',
-            '1' => '¹',
-            '2' => '²',
-            '3' => '³',
-            '4' => '⁴',
-            '5' => '⁵',
-            '6' => '⁶',
-            '7' => '⁷',
-            '8' => '⁸',
-            _ => '⁹',
-        })
-        .collect()
-}
-
-/// A log-axis tick label: decades as 10ⁿ, other ticks as plain numbers.
-pub(super) fn fmt_log_tick(v: f64) -> String {
+/// A log-axis tick label in one form for the whole axis over [lo, hi]:
+/// plain numbers (`0.05, 0.1, 0.2`) when the axis stays within [1e-3, 1e5),
+/// else `m×10ⁿ` for every tick (`5×10⁻², 10⁻¹, 2×10⁻¹`), never a mix.
+pub(super) fn fmt_log_tick(v: f64, (lo, hi): (f64, f64)) -> String {
     if v <= 0.0 || !v.is_finite() {
         return String::new();
     }
-    let l = v.log10();
-    let k = l.round();
-    if (l - k).abs() < 1e-6 {
-        format!("10{}", superscript(k as i32))
+    if lo >= 1e-3 && hi < 1e5 {
+        crate::numbers::meaningful(v, 2)
     } else {
-        fmt_sig(v, 2)
+        crate::numbers::scientific(v, 2)
     }
 }
 
@@ -363,14 +320,17 @@ mod tests {
     fn number_formats() {
         assert_eq!(fmt_sig(0.30000000000000004, 4), "0.3");
         assert_eq!(fmt_sig(1234.6, 4), "1235");
-        assert_eq!(fmt_sig(1.5e-7, 4), "1.5e-7");
+        assert_eq!(fmt_sig(1.5e-7, 4), "1.5×10⁻⁷");
         assert_eq!(fmt_tick(1e-17, 1.0), "0");
         assert_eq!(fmt_tick(0.25, 1.0), "0.25");
         assert_eq!(fmt_tick(1.000012, 1e-5), "1.000012");
         assert_eq!(fmt_tick(250.25, 2.0), "250.25");
-        assert_eq!(fmt_log_tick(1e-3), "10⁻³");
-        assert_eq!(fmt_log_tick(1.0), "10⁰");
-        assert_eq!(fmt_log_tick(2e-3), "0.002");
+        // One form per axis: plain within [1e-3, 1e5), else m×10ⁿ.
+        let (short, long) = ((0.04, 0.6), (1e-4, 2.0));
+        let ticks = |axis| [0.05, 0.1, 0.2].map(|v| fmt_log_tick(v, axis));
+        assert_eq!(ticks(short), ["0.05", "0.1", "0.2"]);
+        assert_eq!(ticks(long), ["5×10⁻²", "10⁻¹", "2×10⁻¹"]);
+        assert_eq!(fmt_log_tick(1.0, long), "10⁰");
     }
 
     #[test]
