@@ -1093,7 +1093,7 @@ pub fn write_snakefile(
          # `obstacle study {study} --out-dir {dir} --workflow snakemake`: one rule per run\n\
          # (`obstacle solve`; a run that fails numerically leaves RUN.failed), then the\n\
          # tables and plots (`obstacle study --from-results`). Run `snakemake -j N` here,\n\
-         # or on Slurm `snakemake --profile slurm` (slurm/config.yaml; README).\n\
+         # or on Slurm `snakemake --profile slurm` (slurm/config.yaml; docs/command-line.md).\n\
          # Another binary: --config obstacle=PATH.\n\
          \n\
          OBSTACLE = config.get(\"obstacle\", {exe})\n\

@@ -1,5 +1,5 @@
 //! Issue 17: the peers' examples of `pipelines/scenes/peers/` (one test per
-//! case), their numbers beside the peers' (docs: README, "Peers").
+//! case), their numbers beside the peers' (docs/problems.md, "Peers").
 
 mod common;
 
