@@ -187,10 +187,16 @@ pub fn index_command(build: &Path, out: Option<&Path>) -> Result<PathBuf> {
         + by_status.get("unreadable").copied().unwrap_or(0);
     let not_converged = by_status.get("not converged").copied().unwrap_or(0);
     let mut overall = count(n_runs as u64, "run", "runs");
-    let parts: Vec<String> = ["converged", "not converged", "failed", "unreadable"]
-        .iter()
-        .filter_map(|w| by_status.get(w).map(|n| format!("{n} {w}")))
-        .collect();
+    let parts: Vec<String> = [
+        "converged",
+        "stopped by the thesis rule",
+        "not converged",
+        "failed",
+        "unreadable",
+    ]
+    .iter()
+    .filter_map(|w| by_status.get(w).map(|n| format!("{n} {w}")))
+    .collect();
     if !parts.is_empty() {
         overall = format!("{overall}: {}", parts.join(", "));
     }
@@ -319,6 +325,8 @@ fn table_view(
             }
             let (class, status) = if at(stop) == "failed" {
                 ("failed", "failed")
+            } else if at(converged) == "false" && at(stop) == "thesis" {
+                ("stopped", "stopped by the thesis rule")
             } else if at(converged) == "false" {
                 ("not-converged", "not converged")
             } else if at(converged) == "true" {

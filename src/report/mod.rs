@@ -54,7 +54,11 @@ pub fn result_plots(result: &Path) -> Vec<PathBuf> {
 pub enum RunStatus {
     /// KKT measure within the tolerance (or one linear solve).
     Converged { detail: String },
-    /// Stopped by `max_iter` or the thesis criterion above the tolerance.
+    /// Stopped by the scene's own rule (`stop = "thesis"`: the thesis'
+    /// criterion on the dual step was met), the KKT measure above the
+    /// tolerance: the run did what the scene asked.
+    StoppedByRule { detail: String },
+    /// Stopped by `max_iter` (or another stop) above the tolerance.
     NotConverged { detail: String },
     /// Failed numerically: the error its failure marker holds.
     Failed { reason: String },
@@ -67,16 +71,19 @@ impl RunStatus {
     pub fn class(&self) -> &'static str {
         match self {
             RunStatus::Converged { .. } => "converged",
+            RunStatus::StoppedByRule { .. } => "stopped",
             RunStatus::NotConverged { .. } => "not-converged",
             RunStatus::Failed { .. } => "failed",
             RunStatus::Unreadable { .. } => "unreadable",
         }
     }
 
-    /// The status word: converged, not converged, failed, unreadable.
+    /// The status word: converged, stopped by the thesis rule, not
+    /// converged, failed, unreadable.
     pub fn word(&self) -> &'static str {
         match self {
             RunStatus::Converged { .. } => "converged",
+            RunStatus::StoppedByRule { .. } => "stopped by the thesis rule",
             RunStatus::NotConverged { .. } => "not converged",
             RunStatus::Failed { .. } => "failed",
             RunStatus::Unreadable { .. } => "unreadable",
@@ -86,7 +93,9 @@ impl RunStatus {
     /// Why: the measures against the tolerance, or the error.
     pub fn detail(&self) -> &str {
         match self {
-            RunStatus::Converged { detail } | RunStatus::NotConverged { detail } => detail,
+            RunStatus::Converged { detail }
+            | RunStatus::StoppedByRule { detail }
+            | RunStatus::NotConverged { detail } => detail,
             RunStatus::Failed { reason } | RunStatus::Unreadable { reason } => reason,
         }
     }
@@ -115,11 +124,15 @@ impl RunStatus {
                 detail: format!("KKT measure {kkt} ≤ tolerance {tol} after {after}"),
             };
         }
+        if stop == "thesis" {
+            return RunStatus::StoppedByRule {
+                detail: format!(
+                    "the thesis criterion ‖λᵏ − λᵏ⁻¹‖ < thesis_tol met after {after}; KKT measure {kkt} (tolerance {tol})"
+                ),
+            };
+        }
         let why = match stop.as_str() {
             "max_iter" => format!("stopped at max_iter after {after}"),
-            "thesis" => {
-                format!("stopped on the thesis criterion ‖λᵏ − λᵏ⁻¹‖ < thesis_tol after {after}")
-            }
             "" => format!("after {after}"),
             other => format!("stopped ({other}) after {after}"),
         };
