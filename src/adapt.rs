@@ -174,10 +174,10 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
     loop {
         let k = steps.len();
         let system = setup_model(scene, &mesh)?;
-        let mut problem = assemble(scene, &mesh, system.as_ref())?;
+        let problem = assemble(scene, &mesh, system.as_ref())?;
         let warm = warm_start(system.as_ref(), &problem, &carried)?;
         let options = solver_options(&scene.solver, scene.model, warm, false);
-        let report = crate::solvers::solve(&mut problem, &options, &system.probes())
+        let report = crate::solvers::solve(&problem, &options, &system.probes())
             .map_err(|e| crate::guards::name_matrix_inputs(scene, e))?;
         let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
         let estimator =

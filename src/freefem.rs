@@ -327,6 +327,7 @@ pub fn resolve_alpha(scene: &Scene, problem: &ContactProblem) -> Result<f64> {
         problem,
         crate::pipeline::uzawa_step(solver),
         solver.step_form.unwrap_or(StepForm::Mean),
+        &crate::pipeline::linear_options(solver),
     )
 }
 
@@ -1037,7 +1038,8 @@ pub fn run_freefem_scene(
         lambda: twin.lambda.clone(),
         ..Default::default()
     };
-    let mut data = system.results(&problem, &report);
+    let linear = crate::pipeline::linear_options(&scene.solver);
+    let mut data = linear.run(|| system.results(&problem, &report));
     twin.check_contact_fields(&data)?;
     let it = info.usize("iterations")?;
     let stop_reason = match &plan {

@@ -20,7 +20,9 @@ use crate::solvers::dual_accelerated::DualAcceleratedOptions;
 use crate::solvers::spectrum::SpectrumEstimate;
 use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
 use crate::solvers::uzawa_split::UzawaSplitOptions;
-use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport, SolverOptions};
+use crate::solvers::{
+    ContactProblem, History, KktMeasures, LinearOptions, SolveReport, SolverOptions,
+};
 use crate::transfer::prolong_dofs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -350,6 +352,15 @@ pub fn uzawa_step(solver: &SolverSpec) -> UzawaStep {
     }
 }
 
+/// The linear solver of a scene's `[solver]` table: `solver.linear` on
+/// `solver.threads` threads.
+pub fn linear_options(solver: &SolverSpec) -> LinearOptions {
+    LinearOptions {
+        method: solver.linear,
+        threads: solver.threads as usize,
+    }
+}
+
 /// A warm start carried from a coarser level (nested iteration): the
 /// primal iterate x (all of the problem's unknowns) and the multiplier λ.
 #[derive(Debug, Clone)]
@@ -368,6 +379,7 @@ pub fn solver_options(
     show_progress: bool,
 ) -> SolverOptions {
     let max_iter = solver.max_iter as usize;
+    let linear = linear_options(solver);
     match solver.method {
         Method::ActiveSet => SolverOptions::ActiveSet(ActiveSetOptions {
             tol: solver.tol,
@@ -380,6 +392,7 @@ pub fn solver_options(
                 ColdStartSpec::InteriorPoint => ColdStart::INTERIOR_POINT,
                 ColdStartSpec::Plain => ColdStart::Plain,
             },
+            linear,
             ..Default::default()
         }),
         Method::DualAccelerated => SolverOptions::DualAccelerated(DualAcceleratedOptions {
@@ -387,12 +400,14 @@ pub fn solver_options(
             max_iter,
             show_progress,
             initial_lambda: start.map(|s| s.lambda),
+            linear,
             ..Default::default()
         }),
         Method::UzawaSplit => SolverOptions::UzawaSplit(UzawaSplitOptions {
             tol: solver.tol,
             max_iter,
             show_progress,
+            linear,
             ..Default::default()
         }),
         Method::Uzawa => SolverOptions::Uzawa(UzawaOptions {
@@ -407,6 +422,7 @@ pub fn solver_options(
             // Cold: a carried λ costs Uzawa iterations (its mesh-scale error
             // at the free boundary is the slowest mode; §8, measured).
             initial_lambda: None,
+            linear,
         }),
     }
 }
@@ -458,13 +474,13 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 
     // Setup and assembly of the scene's model.
     let system = setup_model(scene, &mesh)?;
-    let mut problem = assemble(scene, &mesh, system.as_ref())?;
+    let problem = assemble(scene, &mesh, system.as_ref())?;
     phase_end("assembly");
 
     // The solver the scene names; without an obstacle, one linear solve.
     let warm_start = nested_start(scene, system.as_ref(), &problem)?;
     let report = crate::solvers::solve(
-        &mut problem,
+        &problem,
         &solver_options(&scene.solver, scene.model, warm_start, show_progress),
         &system.probes(),
     )
@@ -502,14 +518,12 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
 /// The model's contact problem, checked: finite, every multiplier acting
 /// on a free unknown (`guards::check_assembled`); a symmetric A kept as
 /// its lower triangle (`ContactProblem::store_lower_triangle`); its interior groups
-/// dropped when the scene turns condensation off (`solver.condense`); the
-/// factorisations of this thread use `solver.threads`.
+/// dropped when the scene turns condensation off (`solver.condense`).
 pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
     let mut problem = system.assemble()?;
     if !scene.solver.condense {
         problem.interior = None;
     }
-    crate::linalg::set_threads(scene.solver.threads as usize);
     guards::check_assembled(scene, mesh, &problem)?;
     problem.store_lower_triangle();
     Ok(problem)
@@ -546,10 +560,10 @@ fn nested_start(
     coarse.mesh.n = Some(n / 2);
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
     let coarse_system = setup_model(&coarse, &coarse_mesh)?;
-    let mut coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
+    let coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
     let start = nested_start(&coarse, coarse_system.as_ref(), &coarse_problem)?;
     let report = crate::solvers::solve(
-        &mut coarse_problem,
+        &coarse_problem,
         &solver_options(&coarse.solver, coarse.model, start, false),
         &coarse_system.probes(),
     )?;
@@ -620,7 +634,9 @@ pub fn result_data(
     problem: &ContactProblem,
     report: &SolveReport,
 ) -> (ResultData, Option<ExactErrors>) {
-    let mut data = system.results(problem, report);
+    // The model's products with A run on the solver's threads.
+    let linear = linear_options(&scene.solver);
+    let mut data = linear.run(|| system.results(problem, report));
     data.scene_text = scene.text.clone();
     let errors = if scene.output.errors {
         system.exact_errors(problem, report)

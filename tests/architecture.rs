@@ -207,3 +207,26 @@ fn hdf5_and_subprocesses_stay_in_their_modules() {
     }
     assert_none("HDF5 and subprocesses", violations);
 }
+
+#[test]
+fn linear_solves_go_through_the_seam() {
+    let direct = ["ReusableFactorization", "factorize_checked", "set_threads"];
+    let mut violations = Vec::new();
+    for (rel, text) in sources() {
+        if rel.starts_with("linalg") {
+            continue;
+        }
+        let code: String = non_test_code(&text)
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .collect();
+        for name in direct {
+            if code.contains(name) {
+                violations.push(format!(
+                    "src/{rel} names {name} (factorise through linalg::analyse or factor_once)"
+                ));
+            }
+        }
+    }
+    assert_none("the linear-solver seam", violations);
+}

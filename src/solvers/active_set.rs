@@ -35,7 +35,7 @@
 //! negative), so it is factorised by the signed-regularised LDLᵀ when A is
 //! symmetric ([`MatrixKind::SymmetricSaddle`]), by LU otherwise. Its pattern
 //! is fixed: the symbolic analysis is done once and each step is a numeric
-//! refactorisation only ([`ReusableFactorization`]), checked on the Newton
+//! refactorisation only ([`LinearSolver`]), checked on the Newton
 //! solve itself (its residual), which the LDLᵀ refines against the true
 //! matrix (LU: `refinement_steps` more).
 //!
@@ -106,8 +106,11 @@ use super::monitor::check_finite;
 use super::uzawa::solve_unconstrained;
 use super::{named, Constraint, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
+use crate::linalg::{
+    analyse, refine, Changed, Factors, LinearOptions, LinearSolver, MatrixKind, Solves,
+    SystemPattern,
+};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
-use crate::linalg::{refine, Changed, Factorization, MatrixKind, ReusableFactorization, Solves};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::Arc;
 use std::time::Instant;
@@ -141,6 +144,7 @@ pub struct ActiveSetOptions {
     /// ([`SwitchedSolve`]) instead of a new one.
     pub switched_steps: bool,
     pub show_progress: bool,
+    pub linear: LinearOptions,
 }
 
 impl Default for ActiveSetOptions {
@@ -155,6 +159,7 @@ impl Default for ActiveSetOptions {
             refinement_steps: 1,
             switched_steps: true,
             show_progress: false,
+            linear: LinearOptions::default(),
         }
     }
 }
@@ -191,10 +196,8 @@ impl ColdStart {
 /// The Newton matrix with its fixed entries and the positions of the
 /// multiplier diagonal, the one part that changes from step to step.
 /// Symmetric (A symmetric): stored as its lower triangle, the storage
-/// every symmetric factorisation reads (`linalg`). Its leading block is
-/// the problem's A itself: [`NewtonMatrix::lend`] builds it in A's own
-/// arrays and [`NewtonMatrix::give_back`] returns them, so the solve holds
-/// one copy of A, not two (the shell at n = 256: 0.53 GB each).
+/// every symmetric factorisation reads (`linalg`). Its leading block is a
+/// copy of the problem's A, which the active set only reads.
 struct NewtonMatrix {
     /// Shared with each step's factorisation for its refinement.
     matrix: Arc<SparseColMat<usize, f64>>,
@@ -213,17 +216,26 @@ struct NewtonMatrix {
 }
 
 impl NewtonMatrix {
-    /// The Newton matrix of `problem`, built in the arrays of its A, which
-    /// it takes (`problem.matrix` is empty until [`NewtonMatrix::give_back`];
-    /// read A x through [`NewtonMatrix::a_product`] meanwhile). A symmetric
-    /// A is first kept as its lower triangle.
-    fn lend(problem: &mut ContactProblem, kind: MatrixKind, compliance: Vec<f64>) -> Result<Self> {
+    /// The Newton matrix of `problem`: A (its lower triangle when
+    /// symmetric), then C's rows scaled and the multiplier columns, in
+    /// arrays allocated once at their final size.
+    fn of(problem: &ContactProblem, kind: MatrixKind, compliance: Vec<f64>) -> Result<Self> {
         let lower = kind != MatrixKind::General;
-        if lower {
-            problem.store_lower_triangle();
-        }
         let (n, m) = (problem.n(), problem.n_multipliers());
-        let a_max = norm_inf(problem.matrix.val()).max(f64::MIN_POSITIVE);
+        let a = &problem.matrix;
+        let a_rows = a.symbolic();
+        // Column j of A as the Newton matrix holds it; rows are sorted
+        // within each column, as in every matrix `linalg` reads.
+        let a_column = |j: usize| {
+            a_rows
+                .row_idx_of_col(j)
+                .zip(a.val_of_col(j))
+                .filter(move |&(i, _)| !lower || i >= j)
+        };
+        let a_max = (0..n)
+            .flat_map(a_column)
+            .fold(0.0f64, |s, (_, v)| s.max(v.abs()))
+            .max(f64::MIN_POSITIVE);
         let c = problem.constraint.as_ref().expect("a constrained problem");
         let scale = constraint_scaling(c, a_max)?;
         // The rows of C, for a whole matrix's multiplier columns.
@@ -231,60 +243,39 @@ impl NewtonMatrix {
             true => None,
             false => Some(constraint_rows(c)?),
         };
-        // A's arrays, compressed (no unused room per column); rows are
-        // sorted within each column, as in every matrix `linalg` reads. The
-        // pipeline's A is compressed already: no pass over it then.
-        let a = problem.take_matrix();
-        let a = match a.symbolic().col_nnz() {
-            Some(_) => crate::linalg::retain_entries(a, n, n, |_, _| true),
-            None => a,
-        };
-        let c = problem.constraint.as_ref().expect("a constrained problem");
         let cs = c.matrix.symbolic();
-        let (symbolic, mut values) = a.into_parts();
-        let (_, _, a_col_ptr, _, mut row_idx) = symbolic.into_parts();
         // Columns 0..n: A's column, then the rows n + i of C's column j,
         // s_i C_ij. Columns n..n+m: s_i (row i of C)ᵀ (whole only), then
         // the diagonal (set by each step).
         let mut col_ptr = Vec::with_capacity(n + m + 1);
         col_ptr.push(0);
         for j in 0..n {
-            let c_before = col_ptr[j] - a_col_ptr[j];
-            col_ptr.push(a_col_ptr[j + 1] + c_before + cs.row_idx_of_col_raw(j).len());
+            col_ptr.push(col_ptr[j] + a_column(j).count() + cs.row_idx_of_col_raw(j).len());
         }
-        let nnz_columns = col_ptr[n] + m + c_rows.as_ref().map_or(0, |rows| rows.val().len());
-        // (Exact: `resize` alone would double the capacity.)
-        row_idx.reserve_exact(nnz_columns - row_idx.len());
-        values.reserve_exact(nnz_columns - values.len());
-        row_idx.resize(nnz_columns, 0);
-        values.resize(nnz_columns, 0.0);
-        // The multiplier columns lie past every entry of A: written first.
+        let nnz = col_ptr[n] + m + c_rows.as_ref().map_or(0, |rows| rows.val().len());
+        let (mut row_idx, mut values) = (Vec::with_capacity(nnz), Vec::with_capacity(nnz));
+        for j in 0..n {
+            for (i, &v) in a_column(j) {
+                row_idx.push(i);
+                values.push(v);
+            }
+            for (i, &v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
+                row_idx.push(n + i);
+                values.push(scale[i] * v);
+            }
+        }
         let mut diagonal = Vec::with_capacity(m);
-        let mut k = col_ptr[n];
         for i in 0..m {
             if let Some(rows) = &c_rows {
                 for (j, &v) in rows.symbolic().row_idx_of_col(i).zip(rows.val_of_col(i)) {
-                    (row_idx[k], values[k]) = (j, scale[i] * v);
-                    k += 1;
+                    row_idx.push(j);
+                    values.push(scale[i] * v);
                 }
             }
-            diagonal.push(k);
-            (row_idx[k], values[k]) = (n + i, 0.0);
-            k += 1;
-            col_ptr.push(k);
-        }
-        // A's columns move back from the last one: column j's new place
-        // starts at or after its old one and ends before column j + 1's.
-        for j in (0..n).rev() {
-            let (old, to) = (a_col_ptr[j]..a_col_ptr[j + 1], col_ptr[j]);
-            let mut k = to + old.len();
-            row_idx.copy_within(old.clone(), to);
-            values.copy_within(old, to);
-            for (i, &v) in cs.row_idx_of_col(j).zip(c.matrix.val_of_col(j)) {
-                (row_idx[k], values[k]) = (n + i, scale[i] * v);
-                k += 1;
-            }
-            debug_assert_eq!(k, col_ptr[j + 1]);
+            diagonal.push(row_idx.len());
+            row_idx.push(n + i);
+            values.push(0.0);
+            col_ptr.push(row_idx.len());
         }
         let symbolic = SymbolicSparseColMat::new_checked(n + m, n + m, col_ptr, None, row_idx);
         Ok(NewtonMatrix {
@@ -305,18 +296,6 @@ impl NewtonMatrix {
         let mut y = crate::linalg::product(&self.matrix, self.kind, &z);
         y.truncate(self.n);
         y
-    }
-
-    /// Gives `problem` its A back: the leading block, in the same arrays
-    /// (the entries of C and the multiplier columns dropped). Every
-    /// factorisation sharing the matrix must be dropped first.
-    fn give_back(self, problem: &mut ContactProblem) {
-        let matrix = Arc::try_unwrap(self.matrix).unwrap_or_else(|shared| {
-            debug_assert!(false, "a factorisation still shares the Newton matrix");
-            (*shared).clone()
-        });
-        let n = self.n;
-        problem.matrix = crate::linalg::retain_entries(matrix, n, n, |i, _| i < n);
     }
 
     /// The multiplier diagonal −Δ_i of an interior-point step.
@@ -364,15 +343,17 @@ fn constraint_scaling(c: &Constraint, a_max: f64) -> Result<Vec<f64>> {
     Ok(scale)
 }
 
-/// Solves a contact problem by the primal–dual active set method (module docs).
-/// The problem's A is the Newton matrix's leading block during the solve
-/// (`NewtonMatrix::lend`) and is given back, with the same entries, at
-/// its end, an error's included; a symmetric A comes back as its lower
-/// triangle ([`ContactProblem::store_lower_triangle`]).
-pub fn active_set(problem: &mut ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
+/// Solves a contact problem by the primal–dual active set method (module
+/// docs), its Newton steps by the linear solver of `options.linear`.
+pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
+    options.linear.run(|| semismooth_newton(problem, options))
+}
+
+/// [`active_set`] on the linear solver's threads.
+fn semismooth_newton(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
     let start = Instant::now();
     let Some(c) = problem.constraint.as_ref() else {
-        return solve_unconstrained(problem);
+        return solve_unconstrained(problem, &options.linear);
     };
     let (n, m) = (problem.n(), c.obstacle.len());
     for (name, len, want) in [
@@ -416,13 +397,11 @@ pub fn active_set(problem: &mut ContactProblem, options: &ActiveSetOptions) -> R
             }
         }
     };
-    let mut newton = NewtonMatrix::lend(problem, kind, compliance)?;
-    let report = newton_steps(problem, &mut newton, &c_rule, options, (start, t));
-    newton.give_back(problem);
-    report
+    let mut newton = NewtonMatrix::of(problem, kind, compliance)?;
+    newton_steps(problem, &mut newton, &c_rule, options, (start, t))
 }
 
-/// The Newton steps of [`active_set`] on the lent Newton matrix (A x from
+/// The Newton steps of [`active_set`] on the Newton matrix (A x from
 /// [`NewtonMatrix::a_product`]); `(start, t)`: the solve's start and its
 /// setup's.
 fn newton_steps(
@@ -446,16 +425,17 @@ fn newton_steps(
         None => c.obstacle.iter().map(|&g| g > 0.0).collect(),
     };
 
-    let mut factorizer = ReusableFactorization::analyze_with(
-        &newton.matrix,
+    let pattern = SystemPattern {
+        matrix: &newton.matrix,
         kind,
-        Solves::Few,
-        problem.interior.as_ref(),
-        "active-set Newton matrix",
-    )?;
+        solves: Solves::Few,
+        interior: problem.interior.as_ref(),
+        what: "active-set Newton matrix",
+    };
+    let mut factorizer = analyse(pattern, &options.linear)?;
     // Steps differ in the multiplier diagonal only (module docs): the
     // bubbles are eliminated once, by the first factorisation.
-    factorizer.keep_eliminations(Some(&newton.diagonal));
+    factorizer.declare_changing(&newton.diagonal);
     let mut report = ReportBuilder::new("active-set", start, 0.0, t.elapsed().as_secs_f64())
         .with_history(&EXTRA_COLUMNS)
         .iterating(
@@ -492,7 +472,7 @@ fn newton_steps(
             handover,
             max_steps: max_steps.min(options.max_iter.saturating_sub(1)),
         };
-        let h = start.run(newton, &mut factorizer, &mut report)?;
+        let h = start.run(newton, factorizer.as_mut(), &mut report)?;
         max_linear_residual = h.max_linear_residual;
         interior_point_steps = h.steps - 1;
         first_step = h.steps + 1;
@@ -512,7 +492,7 @@ fn newton_steps(
     let mut rhs = vec![0.0; n + m];
     // The last factorisation and the set it was made for, while PDAS
     // steps may be solved with it.
-    let mut kept: Option<(Factorization, Vec<bool>)> = None;
+    let mut kept: Option<(Box<dyn Factors>, Vec<bool>)> = None;
     let mut switched_steps = 0usize;
     let c_rows = match options.switched_steps {
         true => Some(constraint_rows(c)?),
@@ -536,8 +516,8 @@ fn newton_steps(
         let t = Instant::now();
         let switched = match (&kept, &c_rows) {
             (Some((f, factorised)), Some(c_rows)) if switching => {
-                SwitchedSolve::new(f, factorised, &active, newton, c_rows)
-                    .and_then(|switched| switched.solve(f, newton, &rhs))
+                SwitchedSolve::new(f.as_ref(), factorised, &active, newton, c_rows)
+                    .and_then(|switched| switched.solve(f.as_ref(), newton, &rhs))
             }
             _ => None,
         };
@@ -551,23 +531,24 @@ fn newton_steps(
                 // The Newton matrix is shared with the kept factorisation.
                 drop(kept.take());
                 newton.set_active(&active);
-                let (factorization, mut z, solve_residual) = factorizer
-                    .factorize_and_solve_shared(
-                        &newton.matrix,
-                        &rhs,
-                        Changed::Declared,
-                        "active-set Newton matrix",
-                    )?;
+                let (factorization, mut z, solve_residual) =
+                    factorizer.factor_and_solve_shared(&newton.matrix, &rhs, Changed::Declared)?;
                 // LU: refinement steps on top; LDLᵀ solves refine themselves.
-                let steps = if factorizer.method() == "LU" {
-                    options.refinement_steps
-                } else {
-                    0
+                let steps = match factorization.refines_itself() {
+                    true => 0,
+                    false => options.refinement_steps,
                 };
                 // (No steps: the factorisation's own check measured the residual.)
                 let linear_residual = match steps {
                     0 => solve_residual,
-                    _ => refine(&newton.matrix, kind, &factorization, &rhs, &mut z, steps),
+                    _ => refine(
+                        &newton.matrix,
+                        kind,
+                        factorization.as_ref(),
+                        &rhs,
+                        &mut z,
+                        steps,
+                    ),
                 };
                 kept = Some((factorization, active.clone()));
                 factorised_seconds = t.elapsed().as_secs_f64();
@@ -662,18 +643,19 @@ fn newton_steps(
         }
         previous = std::mem::replace(&mut active, next);
     }
+    let counts = factorizer.counts();
     let c_min = c_rule.iter().cloned().fold(f64::INFINITY, f64::min);
     let c_max = c_rule.iter().cloned().fold(0.0, f64::max);
     let parameters = named(&[
         ("tol", options.tol),
         ("c_min", c_min),
         ("c_max", c_max),
-        ("symbolic_analyses", factorizer.symbolic_analyses() as f64),
+        ("symbolic_analyses", counts.symbolic_analyses as f64),
         (
             "numeric_factorizations",
-            factorizer.numeric_factorizations() as f64,
+            counts.numeric_factorizations as f64,
         ),
-        ("factorized_work", factorizer.factorized_work()),
+        ("factorized_work", counts.factorized_work),
         ("max_linear_residual", max_linear_residual),
         ("bisection_probes", probes as f64),
         ("interior_point_steps", interior_point_steps as f64),
@@ -714,7 +696,7 @@ fn constraint_rows(c: &Constraint) -> Result<SparseColMat<usize, f64>> {
 /// complement G = Wᵀ M⁻¹ W (r × r): ω = G⁻¹ (Wᵀ M⁻¹ b_M − h), z = M⁻¹ (b_M −
 /// W ω), two solves with M's factors. G comes from the columns' forward
 /// sweeps over the paths of the elimination tree they reach
-/// ([`Factorization::inverse_gram`]), a fraction of a factorisation when r
+/// ([`Factors::inverse_gram`]), a fraction of a factorisation when r
 /// is small (the fringe the last PDAS steps switch). Exact in exact
 /// arithmetic; refined against M' like any solve.
 struct SwitchedSolve {
@@ -753,9 +735,9 @@ const SWITCHED_ROUND_OFF: f64 = 1e-15;
 
 impl SwitchedSolve {
     /// None when nothing switched or the sweep of the columns would cost
-    /// too much ([`Factorization::inverse_gram`]).
+    /// too much ([`Factors::inverse_gram`]).
     fn new(
-        f: &Factorization,
+        f: &dyn Factors,
         factorised: &[bool],
         active: &[bool],
         newton: &NewtonMatrix,
@@ -795,7 +777,7 @@ impl SwitchedSolve {
 
     /// One bordered solve (two with M's factors), not refined; None when
     /// G is singular.
-    fn raw(&self, f: &Factorization, b: &[f64]) -> Option<Vec<f64>> {
+    fn raw(&self, f: &dyn Factors, b: &[f64]) -> Option<Vec<f64>> {
         let n = self.n;
         let n_off = self.off.len();
         let mut b_m = b.to_vec();
@@ -857,12 +839,7 @@ impl SwitchedSolve {
     /// z with M' z = b, refined against M', and its relative residual;
     /// None (the caller factorises) when it does not reach
     /// [`SWITCHED_ACCEPTED`] or is not finite.
-    fn solve(
-        &self,
-        f: &Factorization,
-        newton: &NewtonMatrix,
-        b: &[f64],
-    ) -> Option<(Vec<f64>, f64)> {
+    fn solve(&self, f: &dyn Factors, newton: &NewtonMatrix, b: &[f64]) -> Option<(Vec<f64>, f64)> {
         let b_norm = norm_inf(b).max(f64::MIN_POSITIVE);
         let residual = |z: &[f64]| -> (Vec<f64>, f64) {
             let r: Vec<f64> = b
@@ -1111,10 +1088,9 @@ impl InteriorPoint<'_> {
     fn run(
         &self,
         newton: &mut NewtonMatrix,
-        factorizer: &mut ReusableFactorization,
+        factorizer: &mut dyn LinearSolver,
         report: &mut ReportBuilder,
     ) -> Result<Handover> {
-        const WHAT: &str = "active-set Newton matrix";
         let problem = self.problem;
         let c = problem.constraint.as_ref().expect("a constrained problem");
         let (n, m) = (problem.n(), c.obstacle.len());
@@ -1124,7 +1100,7 @@ impl InteriorPoint<'_> {
         rhs[..n].copy_from_slice(&problem.rhs);
         let t = Instant::now();
         let (free, z, mut max_residual) =
-            factorizer.factorize_and_solve_shared(&newton.matrix, &rhs, Changed::Declared, WHAT)?;
+            factorizer.factor_and_solve_shared(&newton.matrix, &rhs, Changed::Declared)?;
         report.factor_seconds += t.elapsed().as_secs_f64();
         check_finite(STAGE, 1, "free solve", &z)?;
         let mut x = z[..n].to_vec();
@@ -1217,12 +1193,8 @@ impl InteriorPoint<'_> {
             // Predictor (affine scaling): r_c = −λ∘t.
             rhs_of(&|i| -slack[i] * lambda[i], &mut rhs);
             let t = Instant::now();
-            let (f, z, residual) = factorizer.factorize_and_solve_shared(
-                &newton.matrix,
-                &rhs,
-                Changed::Declared,
-                WHAT,
-            )?;
+            let (f, z, residual) =
+                factorizer.factor_and_solve_shared(&newton.matrix, &rhs, Changed::Declared)?;
             report.factor_seconds += t.elapsed().as_secs_f64();
             max_residual = max_residual.max(residual);
             check_finite(STAGE, k, "interior-point predictor", &z)?;
