@@ -39,8 +39,9 @@ use crate::error::{Error, Result};
 use crate::guards::peak_rss_kb;
 use crate::linalg::{analyse, Solves, SystemPattern};
 use crate::output::{read_result, OutputTransaction};
-use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model};
+use crate::pipeline::scene_mesh_in_temp;
 use crate::plot;
+use crate::run::run_scene;
 use crate::scene::{read_toml_file, Scene};
 use crate::study::{run_study, Study, StudyRow};
 use crate::transfer::relative_errors;
@@ -191,8 +192,7 @@ pub fn run_case(
     if linear {
         let mesh = scene_mesh_in_temp(&scene)?;
         push_phase_rss(&mut f, "meshing");
-        let system = setup_model(&scene, &mesh)?;
-        let problem = crate::pipeline::assemble(&scene, &mesh, system.as_ref())?;
+        let (system, problem) = crate::pipeline::assembled(&scene, &mesh)?;
         // Peak RSS so far: meshing and assembly (coordinate triplets) alone.
         push_phase_rss(&mut f, "assembly");
         // One factorisation and the one checked solve of A x = F …

@@ -8,7 +8,8 @@
 use crate::assembly::{mat_vec, norm2, Triplets};
 use crate::error::{Error, Result};
 use crate::linalg::{factor_once, Factors, MatrixKind, Solves};
-use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model, RunSummary};
+use crate::pipeline::{scene_mesh_in_temp, setup_model, RunSummary};
+use crate::run::run_scene;
 use crate::scene::Scene;
 use crate::solvers::ContactProblem;
 use std::fmt::Write as _;

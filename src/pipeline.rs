@@ -441,13 +441,11 @@ pub fn output_folder(out: &Path) -> Result<&Path> {
     Ok(dir)
 }
 
-/// Runs a scene and writes `out` (HDF5, plus the `.xdmf`, the `.msh` and the
-/// scene's plots beside it) in one [`OutputTransaction`]: all of them or,
-/// on any error, none, and never over an input of the run.
-pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
-    if scene.adapt.is_some() {
-        return crate::adapt::run_adaptive(scene, out).map(|(summary, _)| summary);
-    }
+/// Runs a scene on its one mesh (its `[adapt]` table is not read:
+/// `run::run_scene` runs those) and writes `out` (HDF5, plus the `.xdmf`,
+/// the `.msh` and the scene's plots beside it) in one [`OutputTransaction`]:
+/// all of them or, on any error, none, and never over an input of the run.
+pub fn run_uniform(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
     let start = Instant::now();
     let (outputs, staged_out) = stage_run_outputs(scene, out)?;
     let msh = match &scene.mesh.file {
@@ -471,21 +469,11 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     };
     let mesh = scene_mesh(scene, &msh)?;
     phase_end("meshing");
-
-    // Setup and assembly of the scene's model.
-    let system = setup_model(scene, &mesh)?;
-    let problem = assemble(scene, &mesh, system.as_ref())?;
-    phase_end("assembly");
-
-    // The solver the scene names; without an obstacle, one linear solve.
-    let warm_start = nested_start(scene, system.as_ref(), &problem)?;
-    let report = crate::solvers::solve(
-        &problem,
-        &solver_options(&scene.solver, scene.model, warm_start, show_progress),
-        &system.probes(),
-    )
-    .map_err(|e| guards::name_matrix_inputs(scene, e))?;
-    phase_end("solve");
+    let Solved {
+        system,
+        problem,
+        report,
+    } = solve_on(scene, &mesh, Start::Scene, show_progress, &mut phase_end)?;
 
     let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
     // The run's time so far, for tables built later from the file (`study --from-results`).
@@ -513,6 +501,64 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
         start,
         out,
     ))
+}
+
+/// How a solve on a mesh starts.
+#[derive(Debug, Clone, Copy)]
+pub enum Start<'a> {
+    /// As the scene says: cold, or nested (`solver.nested`).
+    Scene,
+    /// From coefficient vectors carried onto this mesh (`/dofs` names: an
+    /// adaptive step's, from the last step's mesh); cold when they do not
+    /// fit ([`warm_start`]).
+    Carried(&'a [(String, Vec<f64>)]),
+}
+
+/// A scene's model solved on one mesh.
+pub struct Solved<'m> {
+    pub system: Box<dyn ModelSystem + 'm>,
+    pub problem: ContactProblem,
+    pub report: SolveReport,
+}
+
+/// The one solve of a scene on a mesh, for the run, its nested levels and
+/// the adaptive steps: the model set up and its problem assembled
+/// ([`assembled`]), the warm start of `start`, the scene's solver (without
+/// an obstacle, one linear solve), a singular matrix named by the keys that
+/// build it. `phase_end` is told "assembly" and "solve" as each ends.
+pub fn solve_on<'m>(
+    scene: &Scene,
+    mesh: &'m Mesh,
+    start: Start<'_>,
+    show_progress: bool,
+    phase_end: &mut dyn FnMut(&str),
+) -> Result<Solved<'m>> {
+    let (system, problem) = assembled(scene, mesh)?;
+    phase_end("assembly");
+    let warm = match start {
+        Start::Scene => nested_start(scene, system.as_ref(), &problem)?,
+        Start::Carried(dofs) => warm_start(system.as_ref(), &problem, dofs)?,
+    };
+    let options = solver_options(&scene.solver, scene.model, warm, show_progress);
+    let report = crate::solvers::solve(&problem, &options, &system.probes())
+        .map_err(|e| guards::name_matrix_inputs(scene, e))?;
+    phase_end("solve");
+    Ok(Solved {
+        system,
+        problem,
+        report,
+    })
+}
+
+/// The scene's model set up on `mesh` and its contact problem assembled
+/// and checked ([`assemble`]).
+pub fn assembled<'m>(
+    scene: &Scene,
+    mesh: &'m Mesh,
+) -> Result<(Box<dyn ModelSystem + 'm>, ContactProblem)> {
+    let system = setup_model(scene, mesh)?;
+    let problem = assemble(scene, mesh, system.as_ref())?;
+    Ok((system, problem))
 }
 
 /// The model's contact problem, checked: finite, every multiplier acting
@@ -559,18 +605,11 @@ fn nested_start(
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
-    let coarse_system = setup_model(&coarse, &coarse_mesh)?;
-    let coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
-    let start = nested_start(&coarse, coarse_system.as_ref(), &coarse_problem)?;
-    let report = crate::solvers::solve(
-        &coarse_problem,
-        &solver_options(&coarse.solver, coarse.model, start, false),
-        &coarse_system.probes(),
-    )?;
-    if report.lambda.iter().all(|&l| l <= 0.0) {
+    let solved = solve_on(&coarse, &coarse_mesh, Start::Scene, false, &mut |_| {})?;
+    if solved.report.lambda.iter().all(|&l| l <= 0.0) {
         return Ok(None);
     }
-    let data = coarse_system.results(&coarse_problem, &report);
+    let data = model_results(&coarse, &solved);
     warm_start(
         system,
         problem,
@@ -625,6 +664,26 @@ pub fn stage_run_outputs(scene: &Scene, out: &Path) -> Result<(OutputTransaction
     Ok((outputs, staged_out))
 }
 
+/// The model's results of a solve ([`ModelSystem::results`]).
+pub fn model_results(scene: &Scene, solved: &Solved<'_>) -> ResultData {
+    let Solved {
+        system,
+        problem,
+        report,
+    } = solved;
+    results_on_solver_threads(scene, system.as_ref(), problem, report)
+}
+
+/// [`ModelSystem::results`], its products with A on the solver's threads.
+pub fn results_on_solver_threads(
+    scene: &Scene,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    report: &SolveReport,
+) -> ResultData {
+    linear_options(&scene.solver).run(|| system.results(problem, report))
+}
+
 /// What a solve writes: the model's results, the scene text, the errors
 /// against the exact solution (`output.errors`), the `/solver` group and,
 /// for an adaptive scene or the "estimator" plot, the estimator.
@@ -634,9 +693,7 @@ pub fn result_data(
     problem: &ContactProblem,
     report: &SolveReport,
 ) -> (ResultData, Option<ExactErrors>) {
-    // The model's products with A run on the solver's threads.
-    let linear = linear_options(&scene.solver);
-    let mut data = linear.run(|| system.results(problem, report));
+    let mut data = results_on_solver_threads(scene, system, problem, report);
     data.scene_text = scene.text.clone();
     let errors = if scene.output.errors {
         system.exact_errors(problem, report)

@@ -22,8 +22,9 @@
 use crate::error::{Error, Result};
 use crate::models::ExactErrors;
 use crate::output::{read_result, OutputTransaction};
-use crate::pipeline::{run_scene, RunSummary};
+use crate::pipeline::RunSummary;
 use crate::plot;
+use crate::run::run_scene;
 use crate::scene::{read_toml_file, Scene};
 use crate::transfer::relative_errors;
 use serde::Deserialize;
