@@ -674,7 +674,7 @@ pub struct SolverSpec {
     /// inside the free solution's penetration zone, then PDAS),
     /// "interior-point" (interior-point steps until the contact set shows,
     /// then PDAS), "plain" PDAS, or "auto": interior-point for the shell,
-    /// depth-bisection for the membrane (src/solvers/active_set.rs).
+    /// depth-bisection for the membrane (src/solvers/active_set/).
     #[serde(default)]
     pub cold_start: ColdStartSpec,
     /// Static condensation of element-interior unknowns (bubbles) in every
