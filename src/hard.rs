@@ -7,7 +7,7 @@
 
 use crate::assembly::{mat_vec, norm2, Triplets};
 use crate::error::{Error, Result};
-use crate::linalg::{factor_once, Factors, MatrixKind, Solves};
+use crate::linalg::{factor_once, Factors, MatrixKind, Solves, SystemPattern};
 use crate::pipeline::{scene_mesh_in_temp, setup_model, RunSummary};
 use crate::run::run_scene;
 use crate::scene::Scene;
@@ -149,12 +149,26 @@ pub fn scene_condition(scene: &Scene) -> Result<Conditions> {
     let what = problem.kind.describe();
     let linear = crate::pipeline::linear_options(&scene.solver);
     let a = &problem.matrix;
-    let f = factor_once(a, problem.kind, Solves::Many, None, what, &linear)?;
+    // The estimate multiplies by A whole: the factors of A as it is.
+    fn pattern<'a>(
+        matrix: &'a faer::sparse::SparseColMat<usize, f64>,
+        kind: MatrixKind,
+        what: &'a str,
+    ) -> SystemPattern<'a> {
+        SystemPattern {
+            matrix,
+            kind,
+            solves: Solves::Many,
+            interior: None,
+            what,
+        }
+    }
+    let f = factor_once(pattern(a, problem.kind, what), &linear)?;
     let kappa = linear.run(|| condition_estimate(a, f.as_ref()));
     let primal = (problem.n_primal < problem.n()).then(|| {
         let k = primal_block(&problem);
         let kind = MatrixKind::SymmetricPositiveDefinite;
-        factor_once(&k, kind, Solves::Many, None, "K_ρ (a_ρ)", &linear)
+        factor_once(pattern(&k, kind, "K_ρ (a_ρ)"), &linear)
             .map(|f| linear.run(|| condition_estimate(&k, f.as_ref())))
             .map_err(|e| e.to_string())
     });

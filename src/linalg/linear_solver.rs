@@ -177,24 +177,13 @@ pub fn analyse(
     }
 }
 
-/// [`analyse`] and [`LinearSolver::factor`] of one matrix: the factors of
-/// `a` (`what` names it), checked on a test solve.
+/// [`analyse`] and [`LinearSolver::factor`] of the one matrix of
+/// `pattern`: its factors, checked on a test solve.
 pub fn factor_once(
-    a: &SparseColMat<usize, f64>,
-    kind: MatrixKind,
-    solves: Solves,
-    interior: Option<&InteriorGroups>,
-    what: &str,
+    pattern: SystemPattern<'_>,
     options: &LinearOptions,
 ) -> Result<Box<dyn Factors>> {
-    let pattern = SystemPattern {
-        matrix: a,
-        kind,
-        solves,
-        interior,
-        what,
-    };
-    analyse(pattern, options)?.factor(a)
+    analyse(pattern, options)?.factor(pattern.matrix)
 }
 
 /// The sparse direct solver: [`ReusableFactorization`] on its threads.

@@ -22,7 +22,7 @@ pub mod uzawa;
 pub mod uzawa_split;
 
 use crate::error::Result;
-use crate::linalg::{factor_once, Factors, InteriorGroups, MatrixKind, Solves};
+use crate::linalg::{factor_once, Factors, InteriorGroups, MatrixKind, Solves, SystemPattern};
 use crate::progress::IterationProgress;
 use active_set::{active_set, ActiveSetOptions};
 use dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
@@ -183,14 +183,14 @@ pub(crate) fn factorize_system(
         Solves::Many => problem.interior.as_ref(),
         Solves::Few => None,
     };
-    let factors = factor_once(
-        &problem.matrix,
-        problem.kind,
+    let pattern = SystemPattern {
+        matrix: &problem.matrix,
+        kind: problem.kind,
         solves,
         interior,
-        problem.kind.describe(),
-        linear,
-    )?;
+        what: problem.kind.describe(),
+    };
+    let factors = factor_once(pattern, linear)?;
     Ok((factors, t.elapsed().as_secs_f64()))
 }
 

@@ -56,7 +56,7 @@ use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{factor_once, LinearOptions, MatrixKind, Solves};
+use crate::linalg::{factor_once, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::solvers::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
@@ -183,14 +183,14 @@ fn first_splitting(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     }
     let t = Instant::now();
     let interior = problem.interior.as_ref().map(|g| g.restricted_to(np));
-    let factorization = factor_once(
-        &k_block,
-        MatrixKind::SymmetricPositiveDefinite,
-        Solves::Many,
-        interior.as_ref(),
-        "primal block K",
-        &options.linear,
-    )?;
+    let pattern = SystemPattern {
+        matrix: &k_block,
+        kind: MatrixKind::SymmetricPositiveDefinite,
+        solves: Solves::Many,
+        interior: interior.as_ref(),
+        what: "primal block K",
+    };
+    let factorization = factor_once(pattern, &options.linear)?;
     let factor_seconds = t.elapsed().as_secs_f64();
 
     // Riesz weights of ψ.
