@@ -133,7 +133,7 @@ impl RunSummary {
     }
 
     /// The summary of a run read back from its result file (root and
-    /// `/solver` attributes, `/solver/history`, the mesh): what [`run_scene`]
+    /// `/solver` attributes, `/solver/history`, the mesh): what [`crate::run::run_scene`]
     /// returned, but `wall_seconds`, which is the run's time up to writing the
     /// file (`/solver/run_seconds`), and what the file does not hold: the
     /// measures' `gap_scale` and the Lanczos step count (both 0).
