@@ -15,8 +15,8 @@ use crate::mesh::Mesh;
 use crate::output::transaction::RemoveOnSignal;
 use crate::output::{numeric_attr, write_adaptive_result, AttrValue, ResultData};
 use crate::pipeline::{
-    assemble, result_data, scene_mesh, setup_model, solver_options, stage_run_outputs, warm_start,
-    write_plots, RunSummary,
+    result_data, run_uniform, scene_mesh, setup_model, solve_on, stage_run_outputs, write_plots,
+    RunSummary, Solved, Start,
 };
 use crate::scene::{AdaptSpec, Scene};
 use crate::transfer::prolong_dofs;
@@ -173,12 +173,11 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
     let mut carried: Vec<(String, Vec<f64>)> = Vec::new();
     loop {
         let k = steps.len();
-        let system = setup_model(scene, &mesh)?;
-        let mut problem = assemble(scene, &mesh, system.as_ref())?;
-        let warm = warm_start(system.as_ref(), &problem, &carried)?;
-        let options = solver_options(&scene.solver, scene.model, warm, false);
-        let report = crate::solvers::solve(&mut problem, &options, &system.probes())
-            .map_err(|e| crate::guards::name_matrix_inputs(scene, e))?;
+        let Solved {
+            system,
+            problem,
+            report,
+        } = solve_on(scene, &mesh, Start::Carried(&carried), false, &mut |_| {})?;
         let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
         let estimator =
             numeric_attr(&data.root_attrs, "estimator").ok_or_else(|| Error::Scene {
@@ -326,7 +325,7 @@ pub fn compare_runs(scene: &Scene, out_dir: &Path) -> Result<(Vec<StepRow>, Vec<
         level.mesh.n = Some(n);
         level.mesh.h = None;
         level.output.plots.clear();
-        let s = crate::pipeline::run_scene(
+        let s = run_uniform(
             &level,
             &out_dir.join(format!("{label}-uniform-{n}.h5")),
             false,

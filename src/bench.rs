@@ -37,10 +37,11 @@
 use crate::adapt::{adaptive_points, compare_markdown, compare_runs, CurvePoint};
 use crate::error::{Error, Result};
 use crate::guards::peak_rss_kb;
-use crate::linalg::{ReusableFactorization, Solves};
+use crate::linalg::{analyse, Solves, SystemPattern};
 use crate::output::{read_result, OutputTransaction};
-use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model};
+use crate::pipeline::scene_mesh_in_temp;
 use crate::plot;
+use crate::run::run_scene;
 use crate::scene::{read_toml_file, Scene};
 use crate::study::{run_study, Study, StudyRow};
 use crate::transfer::relative_errors;
@@ -191,22 +192,21 @@ pub fn run_case(
     if linear {
         let mesh = scene_mesh_in_temp(&scene)?;
         push_phase_rss(&mut f, "meshing");
-        let system = setup_model(&scene, &mesh)?;
-        let problem = crate::pipeline::assemble(&scene, &mesh, system.as_ref())?;
+        let (system, problem) = crate::pipeline::assembled(&scene, &mesh)?;
         // Peak RSS so far: meshing and assembly (coordinate triplets) alone.
         push_phase_rss(&mut f, "assembly");
         // One factorisation and the one checked solve of A x = F …
         let t = Instant::now();
-        let mut factorizer = ReusableFactorization::analyze_with(
-            &problem.matrix,
-            problem.kind,
-            Solves::Few,
-            problem.interior.as_ref(),
-            "system matrix",
-        )?;
+        let pattern = SystemPattern {
+            matrix: &problem.matrix,
+            kind: problem.kind,
+            solves: Solves::Few,
+            interior: problem.interior.as_ref(),
+            what: "system matrix",
+        };
+        let mut factorizer = analyse(pattern, &crate::pipeline::linear_options(&scene.solver))?;
         let analyze = t.elapsed().as_secs_f64();
-        let (factorization, _, _) =
-            factorizer.factorize_and_solve(&problem.matrix, &problem.rhs, "system matrix")?;
+        let (factorization, _, _) = factorizer.factor_and_solve(&problem.matrix, &problem.rhs)?;
         let factor_and_solve = t.elapsed().as_secs_f64();
         push_phase_rss(&mut f, "factorisation");
         // … and one more solve, timed alone (the iteration-cost calibration).
@@ -221,14 +221,15 @@ pub fn run_case(
         f.push(("factor_seconds".into(), format!("{factor:e}")));
         // Of it, the symbolic analysis (with condensation: the plan and S's).
         f.push(("analyze_seconds".into(), format!("{analyze:e}")));
+        let counts = factorizer.counts();
         f.push((
             "factorized_order".into(),
-            factorizer.factorized_order().to_string(),
+            counts.factorized_order.to_string(),
         ));
         // More than one analysis: the factorisation took a fallback.
         f.push((
             "symbolic_analyses".into(),
-            factorizer.symbolic_analyses().to_string(),
+            counts.symbolic_analyses.to_string(),
         ));
         f.push(("solve_seconds".into(), format!("{solve:e}")));
         f.push(("seconds".into(), format!("{factor_and_solve:e}")));

@@ -29,7 +29,7 @@ use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, She
 use crate::models::naghdi::geometry::Chart;
 use crate::models::named_boundary_tags;
 use crate::output::{write_result, AttrValue, OutputTransaction, ResultData};
-use crate::pipeline::{scene_mesh, setup_model};
+use crate::pipeline::scene_mesh;
 use crate::scene::{
     Alpha, BoundaryCondition, ContactMultiplier, ElementPair, Expression, Model, ObstacleShape,
     Scene, ShellSpec, StepForm, StopRule,
@@ -321,6 +321,7 @@ pub fn resolve_alpha(scene: &Scene, problem: &ContactProblem) -> Result<f64> {
         problem,
         crate::pipeline::uzawa_step(solver),
         solver.step_form.unwrap_or(StepForm::Mean),
+        &crate::pipeline::linear_options(solver),
     )
 }
 
@@ -993,8 +994,7 @@ pub fn run_freefem_scene(
     // its result builder turns FreeFEM's coefficients into the result file.
     // (Assembled in Rust whatever α is: the checks of `pipeline::assemble`,
     // finite data and no multiplier without free unknowns, hold for the twin too.)
-    let system = setup_model(scene, &mesh)?;
-    let problem = crate::pipeline::assemble(scene, &mesh, system.as_ref())?;
+    let (system, problem) = crate::pipeline::assembled(scene, &mesh)?;
     let plan = match &scene.obstacle {
         Some(_) => Some(uzawa_plan(
             scene,
@@ -1031,7 +1031,8 @@ pub fn run_freefem_scene(
         lambda: twin.lambda.clone(),
         ..Default::default()
     };
-    let mut data = system.results(&problem, &report);
+    let mut data =
+        crate::pipeline::results_on_solver_threads(scene, system.as_ref(), &problem, &report);
     twin.check_contact_fields(&data)?;
     let it = info.usize("iterations")?;
     let stop_reason = match &plan {

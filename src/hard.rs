@@ -7,8 +7,9 @@
 
 use crate::assembly::{mat_vec, norm2, Triplets};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked, Factorization, MatrixKind, Solves};
-use crate::pipeline::{run_scene, scene_mesh_in_temp, setup_model, RunSummary};
+use crate::linalg::{factor_once, Factors, MatrixKind, Solves, SystemPattern};
+use crate::pipeline::{scene_mesh_in_temp, setup_model, RunSummary};
+use crate::run::run_scene;
 use crate::scene::Scene;
 use crate::solvers::ContactProblem;
 use std::fmt::Write as _;
@@ -92,7 +93,7 @@ impl HardRow {
 /// converge from below, so the estimate is a lower bound on κ₂.
 pub fn condition_estimate(
     a: &faer::sparse::SparseColMat<usize, f64>,
-    factorization: &Factorization,
+    factorization: &dyn Factors,
 ) -> f64 {
     let n = a.nrows();
     let start: Vec<f64> = (0..n)
@@ -146,18 +147,30 @@ pub fn scene_condition(scene: &Scene) -> Result<Conditions> {
     let system = setup_model(scene, &mesh)?;
     let problem: ContactProblem = system.assemble()?;
     let what = problem.kind.describe();
-    let f = factorize_checked(&problem.matrix, problem.kind, Solves::Many, what)?;
-    let kappa = condition_estimate(&problem.matrix, &f);
+    let linear = crate::pipeline::linear_options(&scene.solver);
+    let a = &problem.matrix;
+    // The estimate multiplies by A whole: the factors of A as it is.
+    fn pattern<'a>(
+        matrix: &'a faer::sparse::SparseColMat<usize, f64>,
+        kind: MatrixKind,
+        what: &'a str,
+    ) -> SystemPattern<'a> {
+        SystemPattern {
+            matrix,
+            kind,
+            solves: Solves::Many,
+            interior: None,
+            what,
+        }
+    }
+    let f = factor_once(pattern(a, problem.kind, what), &linear)?;
+    let kappa = linear.run(|| condition_estimate(a, f.as_ref()));
     let primal = (problem.n_primal < problem.n()).then(|| {
         let k = primal_block(&problem);
-        factorize_checked(
-            &k,
-            MatrixKind::SymmetricPositiveDefinite,
-            Solves::Many,
-            "K_ρ (a_ρ)",
-        )
-        .map(|f| condition_estimate(&k, &f))
-        .map_err(|e| e.to_string())
+        let kind = MatrixKind::SymmetricPositiveDefinite;
+        factor_once(pattern(&k, kind, "K_ρ (a_ρ)"), &linear)
+            .map(|f| linear.run(|| condition_estimate(&k, f.as_ref())))
+            .map_err(|e| e.to_string())
     });
     Ok((kappa, primal))
 }

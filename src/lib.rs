@@ -5,7 +5,8 @@
 //! [`mesh`] → [`space`] (FE spaces, DOF maps) → [`assembly`] (forms as plain
 //! functions) → [`models`] (membrane, Naghdi shell) build an algebraic contact problem
 //! → [`solvers`] (know nothing about the models) → [`output`] (HDF5 + XDMF).
-//! [`pipeline`] runs these steps for one scene; [`study`] runs many, and
+//! [`pipeline`] runs these steps for one scene ([`run`] picks it or the
+//! adaptive loop); [`study`] runs many, and
 //! [`transfer`] measures a run against a finer one; [`adapt`] loops a scene
 //! over meshes refined where its a posteriori estimator is large.
 
@@ -34,6 +35,7 @@ pub mod plot;
 pub mod progress;
 pub mod quadrature;
 pub mod report;
+pub mod run;
 pub mod scene;
 pub mod solvers;
 pub mod space;

@@ -21,12 +21,18 @@ use faer::{Conj, MatMut, Par, Side};
 use std::sync::Arc;
 
 mod condensed;
+mod linear_solver;
 mod tree_ldlt;
+pub use linear_solver::{
+    analyse, factor_once, Factors, LinearMethod, LinearOptions, LinearSolver, SolverCounts,
+    SystemPattern,
+};
 use tree_ldlt::TreeSchedule;
 
 thread_local! {
-    /// Threads of the supernodal LDLᵀ factorisations made on this thread
-    /// ([`set_threads`]); 1: faer's sequential one.
+    /// Threads of the supernodal LDLᵀ factorisations made on this thread,
+    /// set only for the span of a [`with_threads`] call; 1: faer's
+    /// sequential one.
     static THREADS: std::cell::Cell<usize> = const { std::cell::Cell::new(1) };
 }
 
@@ -61,24 +67,35 @@ pub fn keep_freed_memory() -> bool {
     }
 }
 
-/// Threads for the supernodal LDLᵀ factorisations made on the calling
-/// thread from now on (`solver.threads`; 1 or 0: faer's sequential
-/// factorisation; 2 or more: two threads on the elimination tree,
-/// `tree_ldlt`, whose one-column solves use the same split). Per thread,
-/// so concurrent runs (tests, `study --jobs`) keep their own. Cholesky and
-/// LU are sequential: faer's own threads lost on this 2-core machine
-/// (docs/work-precision.md, "Two threads on the elimination tree").
-pub fn set_threads(threads: usize) {
-    THREADS.with(|t| t.set(threads.max(1)));
+/// Runs `work` with the supernodal LDLᵀ factorisations and the large
+/// kernels (products, equilibration, entry checks) it makes on this thread
+/// on `threads` threads (1 or 0: faer's sequential factorisation; 2 or
+/// more: two threads on the elimination tree, `tree_ldlt`, whose one-column
+/// solves use the same split), and restores the count it found after (an
+/// unwinding panic included). The count comes from the caller's
+/// [`LinearOptions`] (`solver.threads`); concurrent runs (tests, `study
+/// --jobs`) keep their own. Cholesky and LU are sequential: faer's own
+/// threads lost on this 2-core machine (docs/work-precision.md, "Two
+/// threads on the elimination tree").
+pub fn with_threads<R>(threads: usize, work: impl FnOnce() -> R) -> R {
+    /// Puts the count found back when dropped.
+    struct Restore(usize);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            THREADS.with(|t| t.set(self.0));
+        }
+    }
+    let _restore = Restore(THREADS.with(|t| t.replace(threads.max(1))));
+    work()
 }
 
 /// Whether this thread's supernodal LDLᵀ factorisations run on two
-/// threads ([`set_threads`]).
+/// threads ([`with_threads`]).
 fn two_threads() -> bool {
     THREADS.with(|t| t.get()) >= 2
 }
 
-/// faer's parallelism: sequential (see [`set_threads`]).
+/// faer's parallelism: sequential (see [`with_threads`]).
 fn parallelism() -> Par {
     Par::Seq
 }
@@ -712,7 +729,7 @@ fn difference(b: &[f64], a: &[f64]) -> Vec<f64> {
 pub fn refine(
     a: &SparseColMat<usize, f64>,
     kind: MatrixKind,
-    f: &Factorization,
+    f: &dyn Factors,
     b: &[f64],
     x: &mut [f64],
     steps: usize,
@@ -762,7 +779,7 @@ enum SymbolicAnalysis {
 /// What every numeric LDLᵀ of one pattern reads.
 struct LdltAnalysis {
     symbolic: Arc<SymbolicCholesky<usize>>,
-    /// The two threads' split of a supernodal analysis ([`set_threads`]).
+    /// The two threads' split of a supernodal analysis ([`with_threads`]).
     schedule: Option<Arc<TreeSchedule>>,
     /// Where the matrix's entries go in that order.
     ordered: OrderedPattern,
@@ -1867,7 +1884,7 @@ impl AnalysedPattern {
 /// A 64-bit hash of `a`'s pattern: every column's length and the first
 /// half of the row indices (column by column), then the second half
 /// ([`PatternHasher`]); the halves hash on two threads when factorisations
-/// have two ([`set_threads`]) and the pattern is large: the hash is the
+/// have two ([`with_threads`]) and the pattern is large: the hash is the
 /// same either way.
 fn pattern_hash(a: &SparseColMat<usize, f64>) -> u64 {
     let s = a.symbolic();
@@ -2248,7 +2265,7 @@ const SOLVE_WORK_PER_ENTRY: f64 = 15.0;
 
 /// Matrices (and factors) with at least this many entries are checked,
 /// equilibrated and solved with on two threads when factorisations have
-/// two ([`set_threads`]).
+/// two ([`with_threads`]).
 const PARALLEL_ENTRIES: usize = 1 << 20;
 
 /// `work` over all of `a`'s columns: on two threads (each about half the
@@ -2291,7 +2308,7 @@ fn column_halves(col_ptr: &[usize]) -> Option<usize> {
 
 /// The LDLᵀ analysis in the ordering `solves` asks for, with its two
 /// threads' schedule when supernodal and this thread factorises on two
-/// ([`set_threads`]).
+/// ([`with_threads`]).
 fn ldlt_analysis(
     a: &SparseColMat<usize, f64>,
     n_primal: usize,
@@ -2526,7 +2543,7 @@ impl Drop for RegularizedLdlt {
 
 impl RegularizedLdlt {
     /// The two threads' split of the analysis is used when this thread's
-    /// factorisations have two threads ([`set_threads`]); `entry_scale` is
+    /// factorisations have two threads ([`with_threads`]); `entry_scale` is
     /// the scale of the matrix's entries ([`checked_scale`]). With `kept`
     /// (the matrix scaled by it: `equilibration` is its), the supernodes
     /// that the changes since the spare factor's matrix do not reach are
@@ -3218,14 +3235,13 @@ mod tests {
         let expected = mat_vec(&whole, &x);
         let scale = norm_inf(&expected);
         for threads in [1, 2] {
-            set_threads(threads);
-            let worst = norm_inf(&difference(&expected, &product(&lower, kind, &x)));
+            let y = with_threads(threads, || product(&lower, kind, &x));
+            let worst = norm_inf(&difference(&expected, &y));
             assert!(
                 worst <= 1e-14 * scale,
                 "{threads} threads: differs by {worst:e} (scale {scale:e})"
             );
         }
-        set_threads(1);
     }
 
     /// The interior unknowns recovered after a condensed solve are the
@@ -3269,13 +3285,13 @@ mod tests {
             .map(|i| ((i * 104_729) % 89) as f64 / 89.0)
             .collect();
         let recovered = |threads: usize| {
-            set_threads(threads);
-            let mut x = b.clone();
-            plan.recover(&local, &x_r, &mut x, false);
-            x
+            with_threads(threads, || {
+                let mut x = b.clone();
+                plan.recover(&local, &x_r, &mut x, false);
+                x
+            })
         };
         let (one, two) = (recovered(1), recovered(2));
-        set_threads(1);
         assert_eq!(&one[..n_r], &x_r[..]);
         let differing = one.iter().zip(&two).filter(|(p, q)| p != q).count();
         assert_eq!(differing, 0, "{differing} of {n} unknowns differ");
@@ -3316,28 +3332,28 @@ mod tests {
             SparseColMat::new(pattern, values)
         };
         for threads in [1, 2] {
-            set_threads(threads);
-            // (value position, value): an off-diagonal entry, then diagonal ones.
-            for (k, v) in [(2 * (n / 2) + 1, -9.0), (0, 7.5), (2 * (n - 1), -1e40)] {
-                let mut values = vec![1.0; 2 * n - 1];
-                values[k] = v;
-                let scale = checked_scale(&bidiagonal(values), "test").unwrap();
-                let what = format!("entry {k} ({threads} threads)");
-                assert_eq!(scale.norm, v.abs(), "{what}");
-                let off_diagonal = if k % 2 == 1 { v.abs() } else { 1.0 };
-                assert_eq!(scale.off_diagonal, off_diagonal, "{what}");
-            }
-            for k in [2 * n - 3, 2 * n - 2] {
-                for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            with_threads(threads, || {
+                // (value position, value): an off-diagonal entry, then diagonal ones.
+                for (k, v) in [(2 * (n / 2) + 1, -9.0), (0, 7.5), (2 * (n - 1), -1e40)] {
                     let mut values = vec![1.0; 2 * n - 1];
-                    values[k] = bad;
-                    let e = checked_scale(&bidiagonal(values), "test").unwrap_err();
-                    let expected = format!("entry {k} is not finite");
-                    assert!(e.to_string().contains(&expected), "{bad}: {e}");
+                    values[k] = v;
+                    let scale = checked_scale(&bidiagonal(values), "test").unwrap();
+                    let what = format!("entry {k} ({threads} threads)");
+                    assert_eq!(scale.norm, v.abs(), "{what}");
+                    let off_diagonal = if k % 2 == 1 { v.abs() } else { 1.0 };
+                    assert_eq!(scale.off_diagonal, off_diagonal, "{what}");
                 }
-            }
+                for k in [2 * n - 3, 2 * n - 2] {
+                    for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                        let mut values = vec![1.0; 2 * n - 1];
+                        values[k] = bad;
+                        let e = checked_scale(&bidiagonal(values), "test").unwrap_err();
+                        let expected = format!("entry {k} is not finite");
+                        assert!(e.to_string().contains(&expected), "{bad}: {e}");
+                    }
+                }
+            });
         }
-        set_threads(1);
     }
 
     #[test]

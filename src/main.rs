@@ -11,8 +11,9 @@ use obstacle_fem::error::{Error, Result};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::output::marker::FailureMarker;
 use obstacle_fem::output::{read_result, summary, OutputTransaction};
-use obstacle_fem::pipeline::{run_scene, scene_mesh};
+use obstacle_fem::pipeline::scene_mesh;
 use obstacle_fem::progress::progress_wanted;
+use obstacle_fem::run::run_scene;
 use obstacle_fem::scene::{command_line_overrides, Scene};
 use obstacle_fem::study::{
     csv_table, history_csv, history_tables, markdown_table, reference_study, rows_from_results,

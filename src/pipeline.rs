@@ -20,7 +20,9 @@ use crate::solvers::dual_accelerated::DualAcceleratedOptions;
 use crate::solvers::spectrum::SpectrumEstimate;
 use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
 use crate::solvers::uzawa_split::UzawaSplitOptions;
-use crate::solvers::{ContactProblem, History, KktMeasures, SolveReport, SolverOptions};
+use crate::solvers::{
+    ContactProblem, History, KktMeasures, LinearOptions, SolveReport, SolverOptions,
+};
 use crate::transfer::prolong_dofs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -131,7 +133,7 @@ impl RunSummary {
     }
 
     /// The summary of a run read back from its result file (root and
-    /// `/solver` attributes, `/solver/history`, the mesh): what [`run_scene`]
+    /// `/solver` attributes, `/solver/history`, the mesh): what [`crate::run::run_scene`]
     /// returned, but `wall_seconds`, which is the run's time up to writing the
     /// file (`/solver/run_seconds`), and what the file does not hold: the
     /// measures' `gap_scale` and the Lanczos step count (both 0).
@@ -350,6 +352,15 @@ pub fn uzawa_step(solver: &SolverSpec) -> UzawaStep {
     }
 }
 
+/// The linear solver of a scene's `[solver]` table: `solver.linear` on
+/// `solver.threads` threads.
+pub fn linear_options(solver: &SolverSpec) -> LinearOptions {
+    LinearOptions {
+        method: solver.linear,
+        threads: solver.threads as usize,
+    }
+}
+
 /// A warm start carried from a coarser level (nested iteration): the
 /// primal iterate x (all of the problem's unknowns) and the multiplier λ.
 #[derive(Debug, Clone)]
@@ -368,6 +379,7 @@ pub fn solver_options(
     show_progress: bool,
 ) -> SolverOptions {
     let max_iter = solver.max_iter as usize;
+    let linear = linear_options(solver);
     match solver.method {
         Method::ActiveSet => SolverOptions::ActiveSet(ActiveSetOptions {
             tol: solver.tol,
@@ -380,6 +392,7 @@ pub fn solver_options(
                 ColdStartSpec::InteriorPoint => ColdStart::INTERIOR_POINT,
                 ColdStartSpec::Plain => ColdStart::Plain,
             },
+            linear,
             ..Default::default()
         }),
         Method::DualAccelerated => SolverOptions::DualAccelerated(DualAcceleratedOptions {
@@ -387,12 +400,14 @@ pub fn solver_options(
             max_iter,
             show_progress,
             initial_lambda: start.map(|s| s.lambda),
+            linear,
             ..Default::default()
         }),
         Method::UzawaSplit => SolverOptions::UzawaSplit(UzawaSplitOptions {
             tol: solver.tol,
             max_iter,
             show_progress,
+            linear,
             ..Default::default()
         }),
         Method::Uzawa => SolverOptions::Uzawa(UzawaOptions {
@@ -407,6 +422,7 @@ pub fn solver_options(
             // Cold: a carried λ costs Uzawa iterations (its mesh-scale error
             // at the free boundary is the slowest mode; §8, measured).
             initial_lambda: None,
+            linear,
         }),
     }
 }
@@ -425,13 +441,11 @@ pub fn output_folder(out: &Path) -> Result<&Path> {
     Ok(dir)
 }
 
-/// Runs a scene and writes `out` (HDF5, plus the `.xdmf`, the `.msh` and the
-/// scene's plots beside it) in one [`OutputTransaction`]: all of them or,
-/// on any error, none, and never over an input of the run.
-pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
-    if scene.adapt.is_some() {
-        return crate::adapt::run_adaptive(scene, out).map(|(summary, _)| summary);
-    }
+/// Runs a scene on its one mesh (its `[adapt]` table is not read:
+/// `run::run_scene` runs those) and writes `out` (HDF5, plus the `.xdmf`,
+/// the `.msh` and the scene's plots beside it) in one [`OutputTransaction`]:
+/// all of them or, on any error, none, and never over an input of the run.
+pub fn run_uniform(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSummary> {
     let start = Instant::now();
     let (outputs, staged_out) = stage_run_outputs(scene, out)?;
     let msh = match &scene.mesh.file {
@@ -455,21 +469,11 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     };
     let mesh = scene_mesh(scene, &msh)?;
     phase_end("meshing");
-
-    // Setup and assembly of the scene's model.
-    let system = setup_model(scene, &mesh)?;
-    let mut problem = assemble(scene, &mesh, system.as_ref())?;
-    phase_end("assembly");
-
-    // The solver the scene names; without an obstacle, one linear solve.
-    let warm_start = nested_start(scene, system.as_ref(), &problem)?;
-    let report = crate::solvers::solve(
-        &mut problem,
-        &solver_options(&scene.solver, scene.model, warm_start, show_progress),
-        &system.probes(),
-    )
-    .map_err(|e| guards::name_matrix_inputs(scene, e))?;
-    phase_end("solve");
+    let Solved {
+        system,
+        problem,
+        report,
+    } = solve_on(scene, &mesh, Start::Scene, show_progress, &mut phase_end)?;
 
     let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
     // The run's time so far, for tables built later from the file (`study --from-results`).
@@ -499,17 +503,73 @@ pub fn run_scene(scene: &Scene, out: &Path, show_progress: bool) -> Result<RunSu
     ))
 }
 
+/// How a solve on a mesh starts.
+#[derive(Debug, Clone, Copy)]
+pub enum Start<'a> {
+    /// As the scene says: cold, or nested (`solver.nested`).
+    Scene,
+    /// From coefficient vectors carried onto this mesh (`/dofs` names: an
+    /// adaptive step's, from the last step's mesh); cold when they do not
+    /// fit ([`warm_start`]).
+    Carried(&'a [(String, Vec<f64>)]),
+}
+
+/// A scene's model solved on one mesh.
+pub struct Solved<'m> {
+    pub system: Box<dyn ModelSystem + 'm>,
+    pub problem: ContactProblem,
+    pub report: SolveReport,
+}
+
+/// The one solve of a scene on a mesh, for the run, its nested levels and
+/// the adaptive steps: the model set up and its problem assembled
+/// ([`assembled`]), the warm start of `start`, the scene's solver (without
+/// an obstacle, one linear solve), a singular matrix named by the keys that
+/// build it. `phase_end` is told "assembly" and "solve" as each ends.
+pub fn solve_on<'m>(
+    scene: &Scene,
+    mesh: &'m Mesh,
+    start: Start<'_>,
+    show_progress: bool,
+    phase_end: &mut dyn FnMut(&str),
+) -> Result<Solved<'m>> {
+    let (system, problem) = assembled(scene, mesh)?;
+    phase_end("assembly");
+    let warm = match start {
+        Start::Scene => nested_start(scene, system.as_ref(), &problem)?,
+        Start::Carried(dofs) => warm_start(system.as_ref(), &problem, dofs)?,
+    };
+    let options = solver_options(&scene.solver, scene.model, warm, show_progress);
+    let report = crate::solvers::solve(&problem, &options, &system.probes())
+        .map_err(|e| guards::name_matrix_inputs(scene, e))?;
+    phase_end("solve");
+    Ok(Solved {
+        system,
+        problem,
+        report,
+    })
+}
+
+/// The scene's model set up on `mesh` and its contact problem assembled
+/// and checked ([`assemble`]).
+pub fn assembled<'m>(
+    scene: &Scene,
+    mesh: &'m Mesh,
+) -> Result<(Box<dyn ModelSystem + 'm>, ContactProblem)> {
+    let system = setup_model(scene, mesh)?;
+    let problem = assemble(scene, mesh, system.as_ref())?;
+    Ok((system, problem))
+}
+
 /// The model's contact problem, checked: finite, every multiplier acting
 /// on a free unknown (`guards::check_assembled`); a symmetric A kept as
 /// its lower triangle (`ContactProblem::store_lower_triangle`); its interior groups
-/// dropped when the scene turns condensation off (`solver.condense`); the
-/// factorisations of this thread use `solver.threads`.
+/// dropped when the scene turns condensation off (`solver.condense`).
 pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<ContactProblem> {
     let mut problem = system.assemble()?;
     if !scene.solver.condense {
         problem.interior = None;
     }
-    crate::linalg::set_threads(scene.solver.threads as usize);
     guards::check_assembled(scene, mesh, &problem)?;
     problem.store_lower_triangle();
     Ok(problem)
@@ -545,18 +605,11 @@ fn nested_start(
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
-    let coarse_system = setup_model(&coarse, &coarse_mesh)?;
-    let mut coarse_problem = assemble(&coarse, &coarse_mesh, coarse_system.as_ref())?;
-    let start = nested_start(&coarse, coarse_system.as_ref(), &coarse_problem)?;
-    let report = crate::solvers::solve(
-        &mut coarse_problem,
-        &solver_options(&coarse.solver, coarse.model, start, false),
-        &coarse_system.probes(),
-    )?;
-    if report.lambda.iter().all(|&l| l <= 0.0) {
+    let solved = solve_on(&coarse, &coarse_mesh, Start::Scene, false, &mut |_| {})?;
+    if solved.report.lambda.iter().all(|&l| l <= 0.0) {
         return Ok(None);
     }
-    let data = coarse_system.results(&coarse_problem, &report);
+    let data = model_results(&coarse, &solved);
     warm_start(
         system,
         problem,
@@ -611,6 +664,26 @@ pub fn stage_run_outputs(scene: &Scene, out: &Path) -> Result<(OutputTransaction
     Ok((outputs, staged_out))
 }
 
+/// The model's results of a solve ([`ModelSystem::results`]).
+pub fn model_results(scene: &Scene, solved: &Solved<'_>) -> ResultData {
+    let Solved {
+        system,
+        problem,
+        report,
+    } = solved;
+    results_on_solver_threads(scene, system.as_ref(), problem, report)
+}
+
+/// [`ModelSystem::results`], its products with A on the solver's threads.
+pub fn results_on_solver_threads(
+    scene: &Scene,
+    system: &dyn ModelSystem,
+    problem: &ContactProblem,
+    report: &SolveReport,
+) -> ResultData {
+    linear_options(&scene.solver).run(|| system.results(problem, report))
+}
+
 /// What a solve writes: the model's results, the scene text, the errors
 /// against the exact solution (`output.errors`), the `/solver` group and,
 /// for an adaptive scene or the "estimator" plot, the estimator.
@@ -620,7 +693,7 @@ pub fn result_data(
     problem: &ContactProblem,
     report: &SolveReport,
 ) -> (ResultData, Option<ExactErrors>) {
-    let mut data = system.results(problem, report);
+    let mut data = results_on_solver_threads(scene, system, problem, report);
     data.scene_text = scene.text.clone();
     let errors = if scene.output.errors {
         system.exact_errors(problem, report)

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 /// A number or an expression in x, y, r (src/expression.rs).
 pub use crate::expression::Expression;
 /// The solver vocabulary the scene's strings map onto (it belongs to solvers/).
-pub use crate::solvers::{DualNorm, StepForm, StopRule};
+pub use crate::solvers::{DualNorm, LinearMethod, StepForm, StopRule};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -674,7 +674,7 @@ pub struct SolverSpec {
     /// inside the free solution's penetration zone, then PDAS),
     /// "interior-point" (interior-point steps until the contact set shows,
     /// then PDAS), "plain" PDAS, or "auto": interior-point for the shell,
-    /// depth-bisection for the membrane (src/solvers/active_set.rs).
+    /// depth-bisection for the membrane (src/solvers/active_set/).
     #[serde(default)]
     pub cold_start: ColdStartSpec,
     /// Static condensation of element-interior unknowns (bubbles) in every
@@ -688,6 +688,11 @@ pub struct SolverSpec {
     /// round-off (docs/work-precision.md, "Two threads on the elimination tree").
     #[serde(default = "default_threads")]
     pub threads: i64,
+    /// The linear solver of every method's systems: "direct" (the sparse
+    /// factorisations of src/linalg.rs behind the seam of
+    /// src/linalg/linear_solver.rs).
+    #[serde(default)]
+    pub linear: LinearMethod,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]

@@ -207,3 +207,194 @@ fn hdf5_and_subprocesses_stay_in_their_modules() {
     }
     assert_none("HDF5 and subprocesses", violations);
 }
+
+#[test]
+fn linear_solves_go_through_the_seam() {
+    let direct = ["ReusableFactorization", "factorize_checked", "set_threads"];
+    let mut violations = Vec::new();
+    for (rel, text) in sources() {
+        if rel.starts_with("linalg") {
+            continue;
+        }
+        let code: String = non_test_code(&text)
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .collect();
+        for name in direct {
+            if code.contains(name) {
+                violations.push(format!(
+                    "src/{rel} names {name} (factorise through linalg::analyse or factor_once)"
+                ));
+            }
+        }
+    }
+    assert_none("the linear-solver seam", violations);
+}
+
+/// The module of a file under `src/` ("output::xdmf"; `mod.rs` is its
+/// folder's module, `linalg.rs` the module `linalg`).
+fn module_of(rel: &str) -> String {
+    let path = rel.trim_end_matches(".rs").trim_end_matches("/mod");
+    path.replace('/', "::")
+}
+
+/// The paths (segments after `crate::` or `super::`, `use` groups
+/// expanded) that a file's code names.
+fn named_paths(code: &str) -> Vec<(bool, Vec<String>)> {
+    fn ident(s: &[u8], i: &mut usize) -> Option<String> {
+        let start = *i;
+        while *i < s.len() && (s[*i].is_ascii_alphanumeric() || s[*i] == b'_') {
+            *i += 1;
+        }
+        (*i > start).then(|| String::from_utf8_lossy(&s[start..*i]).into_owned())
+    }
+    /// The paths from `i` on, each starting with `prefix`.
+    fn paths(s: &[u8], i: &mut usize, prefix: Vec<String>, out: &mut Vec<Vec<String>>) {
+        let mut segments = prefix;
+        loop {
+            if s.get(*i) != Some(&b'{') {
+                match ident(s, i) {
+                    Some(name) => segments.push(name),
+                    None => break,
+                }
+                if !s[*i..].starts_with(b"::") {
+                    break;
+                }
+                *i += 2;
+            }
+            if s.get(*i) == Some(&b'{') {
+                *i += 1;
+                loop {
+                    while *i < s.len() && (s[*i] as char).is_whitespace() {
+                        *i += 1;
+                    }
+                    paths(s, i, segments.clone(), out);
+                    // Skip `as name`, `*` and the like up to the next item.
+                    let mut depth = 0;
+                    while *i < s.len() {
+                        match s[*i] {
+                            b'{' => depth += 1,
+                            b'}' if depth == 0 => break,
+                            b'}' => depth -= 1,
+                            b',' if depth == 0 => break,
+                            _ => {}
+                        }
+                        *i += 1;
+                    }
+                    if *i >= s.len() || s[*i] == b'}' {
+                        *i += 1;
+                        return;
+                    }
+                    *i += 1;
+                }
+            }
+        }
+        out.push(segments);
+    }
+    let code: String = code
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("//"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let s = code.as_bytes();
+    let mut found = Vec::new();
+    for (marker, from_crate) in [("crate::", true), ("super::", false)] {
+        for (k, _) in code.match_indices(marker) {
+            // `$crate::` in macros and paths like `foo::crate::` are not ours.
+            if k > 0 && (s[k - 1].is_ascii_alphanumeric() || s[k - 1] == b'_' || s[k - 1] == b'$') {
+                continue;
+            }
+            let mut i = k + marker.len();
+            let mut out = Vec::new();
+            paths(s, &mut i, Vec::new(), &mut out);
+            found.extend(out.into_iter().map(|p| (from_crate, p)));
+        }
+    }
+    found
+}
+
+/// No module imports, through others, a module that imports it: the module
+/// graph of `src/` (a module and its own submodules apart) has no cycle.
+#[test]
+fn the_module_graph_has_no_cycles() {
+    let files: Vec<(String, String)> = sources()
+        .into_iter()
+        .filter(|(rel, _)| rel != "lib.rs" && rel != "main.rs")
+        .collect();
+    let modules: Vec<String> = files.iter().map(|(rel, _)| module_of(rel)).collect();
+    let within = |a: &str, b: &str| a == b || a.starts_with(&format!("{b}::"));
+    let mut edges: std::collections::BTreeMap<String, std::collections::BTreeSet<String>> =
+        Default::default();
+    for ((_, text), module) in files.iter().zip(&modules) {
+        for (from_crate, path) in named_paths(non_test_code(text)) {
+            let mut full: Vec<String> = match from_crate {
+                true => Vec::new(),
+                false => module.split("::").map(String::from).collect(),
+            };
+            if !from_crate {
+                full.pop();
+            }
+            full.extend(path);
+            // The longest prefix that is a module.
+            let target = (1..=full.len())
+                .rev()
+                .map(|k| full[..k].join("::"))
+                .find(|m| modules.contains(m));
+            if let Some(target) = target {
+                if !within(module, &target) && !within(&target, module) {
+                    edges.entry(module.clone()).or_default().insert(target);
+                }
+            }
+        }
+    }
+    // Depth-first search; a back edge closes a cycle.
+    fn visit(
+        m: &str,
+        edges: &std::collections::BTreeMap<String, std::collections::BTreeSet<String>>,
+        state: &mut std::collections::BTreeMap<String, u8>,
+        stack: &mut Vec<String>,
+        cycles: &mut Vec<String>,
+    ) {
+        state.insert(m.to_string(), 1);
+        stack.push(m.to_string());
+        for next in edges.get(m).into_iter().flatten() {
+            match state.get(next.as_str()).copied().unwrap_or(0) {
+                0 => visit(next, edges, state, stack, cycles),
+                1 => {
+                    let from = stack.iter().position(|s| s == next).unwrap();
+                    let mut cycle = stack[from..].to_vec();
+                    cycle.push(next.clone());
+                    cycles.push(cycle.join(" → "));
+                }
+                _ => {}
+            }
+        }
+        stack.pop();
+        state.insert(m.to_string(), 2);
+    }
+    let mut state = std::collections::BTreeMap::new();
+    let mut cycles = Vec::new();
+    for m in &modules {
+        if !state.contains_key(m.as_str()) {
+            visit(m, &edges, &mut state, &mut Vec::new(), &mut cycles);
+        }
+    }
+    assert!(
+        edges.get("pipeline").is_some_and(|e| e.contains("solvers")),
+        "the graph is read (pipeline → solvers): {edges:?}"
+    );
+    // Cycles not broken yet, in files other work is changing (the failure
+    // marker and its transaction; the shell's forms and its membrane strain
+    // interpolant): each listed as the search finds it.
+    const KNOWN: [&str; 2] = [
+        "output::transaction → output::marker → output::transaction",
+        "models::naghdi::forms → models::naghdi::membrane_strain → models::naghdi::forms",
+    ];
+    let gone: Vec<&str> = KNOWN
+        .into_iter()
+        .filter(|k| !cycles.iter().any(|c| c == k))
+        .collect();
+    assert!(gone.is_empty(), "broken since: remove from KNOWN: {gone:?}");
+    cycles.retain(|c| !KNOWN.contains(&c.as_str()));
+    assert_none("modules importing each other", cycles);
+}

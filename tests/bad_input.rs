@@ -96,6 +96,7 @@ fn malformed_toml_and_unknown_keys() {
         ("shell.young=\"big\"", "shell.young"),
         ("mesh.n=1.5", "mesh.n"),
         ("solver.method=newton", "solver.method"),
+        ("solver.linear=multigrid", "solver.linear"),
     ] {
         let o = run_obstacle(&["solve", SHELL, "--set", set, "--out", o_str]);
         assert_clear_failure(&o, &["naghdi-hypar.toml", field], &out, set);

@@ -18,7 +18,7 @@ use obstacle_fem::solvers::active_set::{ActiveSetOptions, ColdStart};
 use obstacle_fem::solvers::dual_accelerated::DualAcceleratedOptions;
 use obstacle_fem::solvers::uzawa::UzawaStep;
 use obstacle_fem::solvers::uzawa_split::UzawaSplitOptions;
-use obstacle_fem::solvers::{solve, ContactProblem, SolveReport, SolverOptions};
+use obstacle_fem::solvers::{solve, ContactProblem, LinearOptions, SolveReport, SolverOptions};
 use std::path::Path;
 
 /// The three problems with interior groups: (label, scene, overrides).
@@ -108,8 +108,8 @@ fn assert_same(label: &str, method: &str, with: &SolveReport, without: &SolveRep
 fn iterative_solvers_give_the_same_iterates_condensed() {
     const K: usize = 40;
     for (label, scene, overrides) in PROBLEMS {
-        let mut condensed = problem(scene, overrides);
-        let mut plain = uncondensed(&condensed);
+        let condensed = problem(scene, overrides);
+        let plain = uncondensed(&condensed);
         let groups = condensed.interior.as_ref().expect("declared by the model");
         let triangles = condensed.n_multipliers().max(1);
         assert!(
@@ -129,8 +129,8 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
                 K,
             ));
             let (with, without) = (
-                solve(&mut condensed, &options, &[]).unwrap(),
-                solve(&mut plain, &options, &[]).unwrap(),
+                solve(&condensed, &options, &[]).unwrap(),
+                solve(&plain, &options, &[]).unwrap(),
             );
             let (a, b) = (with.alpha.unwrap(), without.alpha.unwrap());
             assert!((a - b).abs() <= 1e-10 * b, "{label}: α {a} vs {b}");
@@ -162,8 +162,8 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
         ];
         for (method, options) in others {
             match (
-                solve(&mut condensed, &options, &[]),
-                solve(&mut plain, &options, &[]),
+                solve(&condensed, &options, &[]),
+                solve(&plain, &options, &[]),
             ) {
                 (Ok(with), Ok(without)) => assert_same(label, method, &with, &without, 1e-12),
                 // The first splitting needs a saddle matrix with ψ; both
@@ -191,8 +191,8 @@ fn threaded_factorisations_give_the_sequential_iterates() {
         let mut sets = overrides.to_vec();
         sets.extend([threads, condense]);
         // `assemble` sets this thread's factorisation threads from the scene.
-        let mut p = problem(scene, &sets);
-        solve(&mut p, &options, &[]).unwrap()
+        let p = problem(scene, &sets);
+        solve(&p, &options, &[]).unwrap()
     };
     for condense in ["solver.condense=true", "solver.condense=false"] {
         let sequential = run("solver.threads=1", condense);
@@ -227,15 +227,15 @@ fn active_set_gives_the_same_active_set_and_solution_condensed() {
             (p, ColdStart::INTERIOR_POINT),
         ]
     }) {
-        let mut condensed = problem(scene, overrides);
-        let mut plain = uncondensed(&condensed);
+        let condensed = problem(scene, overrides);
+        let plain = uncondensed(&condensed);
         let options = SolverOptions::ActiveSet(ActiveSetOptions {
             cold_start,
             ..Default::default()
         });
         let (with, without) = (
-            solve(&mut condensed, &options, &[]).unwrap(),
-            solve(&mut plain, &options, &[]).unwrap(),
+            solve(&condensed, &options, &[]).unwrap(),
+            solve(&plain, &options, &[]).unwrap(),
         );
         eprintln!(
             "{label}, {cold_start:?}: {} Newton solves condensed, {} whole",
@@ -260,11 +260,11 @@ fn linear_solve_agrees_condensed() {
     for (label, scene, overrides) in PROBLEMS {
         let mut condensed = problem(scene, overrides);
         condensed.constraint = None;
-        let mut plain = uncondensed(&condensed);
+        let plain = uncondensed(&condensed);
         let options = SolverOptions::ActiveSet(ActiveSetOptions::default());
         let (with, without) = (
-            solve(&mut condensed, &options, &[]).unwrap(),
-            solve(&mut plain, &options, &[]).unwrap(),
+            solve(&condensed, &options, &[]).unwrap(),
+            solve(&plain, &options, &[]).unwrap(),
         );
         assert_eq!(with.stop_reason, "linear");
         let dx = relative(&with.x, &without.x);
@@ -486,18 +486,21 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
 /// factorisation fewer per switched step.
 #[test]
 fn switched_pdas_steps_reach_the_factorised_solution() {
-    obstacle_fem::linalg::set_threads(2);
-    let mut problem = problem("pipelines/scenes/naghdi-hypar.toml", &["mesh.n=64"]);
-    let mut run = |switched_steps| {
+    let problem = problem("pipelines/scenes/naghdi-hypar.toml", &["mesh.n=64"]);
+    let run = |switched_steps| {
         let options = SolverOptions::ActiveSet(ActiveSetOptions {
             cold_start: ColdStart::INTERIOR_POINT,
             switched_steps,
+            // The sweeps need the tree's split.
+            linear: LinearOptions {
+                threads: 2,
+                ..Default::default()
+            },
             ..Default::default()
         });
-        solve(&mut problem, &options, &[]).unwrap()
+        solve(&problem, &options, &[]).unwrap()
     };
     let (switched, factorised) = (run(true), run(false));
-    obstacle_fem::linalg::set_threads(1);
     let count = |r: &SolveReport| {
         (
             parameter(r, "numeric_factorizations"),

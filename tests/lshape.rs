@@ -184,7 +184,7 @@ fn uzawa_on(
     let scene = Scene::load(&scene_file("lshape"), &overrides).unwrap();
     let mesh = scene_mesh(&scene, &dir.join(format!("n{n}.msh"))).unwrap();
     let system = setup_model(&scene, &mesh).unwrap();
-    let mut problem = assemble(&scene, &mesh, system.as_ref()).unwrap();
+    let problem = assemble(&scene, &mesh, system.as_ref()).unwrap();
     let carried = coarse.map_or(Vec::new(), |(data, coarse_mesh)| {
         prolong_dofs(data, coarse_mesh, &mesh)
     });
@@ -197,7 +197,7 @@ fn uzawa_on(
         panic!("the scene asks for Uzawa")
     };
     uzawa.initial_lambda = lambda;
-    let report = solve(&mut problem, &options, &[]).unwrap();
+    let report = solve(&problem, &options, &[]).unwrap();
     assert!(
         report.converged,
         "n = {n}: {} iterations",

@@ -12,7 +12,8 @@
 //! for the unstructured meshes: P1⊕B3 L² ≥ 1.8, H¹ ≥ 0.88; P2 L² ≥ 2.0, H¹ ≥ 1.3.
 
 use obstacle_fem::output::{numeric_attr, read_result, AttrValue};
-use obstacle_fem::pipeline::{run_scene, RunSummary};
+use obstacle_fem::pipeline::RunSummary;
+use obstacle_fem::run::run_scene;
 use obstacle_fem::scene::Scene;
 use obstacle_fem::Error;
 use std::path::{Path, PathBuf};

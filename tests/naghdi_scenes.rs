@@ -10,7 +10,8 @@ use common::{
 };
 
 use obstacle_fem::output::{read_result, AttrValue};
-use obstacle_fem::pipeline::{run_scene, RunSummary};
+use obstacle_fem::pipeline::RunSummary;
+use obstacle_fem::run::run_scene;
 use obstacle_fem::scene::Scene;
 use obstacle_fem::Error;
 use std::path::Path;

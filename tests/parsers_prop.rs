@@ -364,7 +364,7 @@ fn run_with(
     overrides.push(format!("{key}={value:e}"));
     let out = case_path("keys", "h5");
     let result = Scene::from_text(text, Path::new("keys.toml"), &overrides)
-        .and_then(|scene| obstacle_fem::pipeline::run_scene(&scene, &out, false));
+        .and_then(|scene| obstacle_fem::run::run_scene(&scene, &out, false));
     match result {
         Ok(summary) => {
             prop_assert!(

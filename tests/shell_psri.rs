@@ -9,7 +9,8 @@
 use nalgebra::Vector3;
 use obstacle_fem::models::naghdi::forms::{field_strains, FieldRole};
 use obstacle_fem::models::naghdi::geometry::Chart;
-use obstacle_fem::pipeline::{run_scene, RunSummary};
+use obstacle_fem::pipeline::RunSummary;
+use obstacle_fem::run::run_scene;
 use obstacle_fem::scene::Scene;
 use std::path::Path;
 

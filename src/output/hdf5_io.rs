@@ -30,7 +30,8 @@
 //! it was. The output directory must exist: it is not created (a typo in a path
 //! should not scatter directories), and a missing one is a clear error.
 
-use super::{xdmf, AttrValue, Field, Location, ResultData, ResultFile};
+use super::xdmf::{self, step_group};
+use super::{AttrValue, Field, Location, ResultData, ResultFile};
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use hdf5::plist::file_access::FileCloseDegree;
@@ -401,11 +402,6 @@ fn write_layout(root: &Group, mesh: &Mesh, data: &ResultData) -> Res<()> {
         write_attr(root, "/", name, value)?;
     }
     Ok(())
-}
-
-/// The group of step k of an adaptive result: `/steps/000`, `/steps/001`, ...
-pub fn step_group(k: usize) -> String {
-    format!("/steps/{k:03}")
 }
 
 /// Creates the HDF5 file at `tmp` (truncating it), writes the layout (and

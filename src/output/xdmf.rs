@@ -23,6 +23,12 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// The XDMF file written beside a result file: same name, extension `.xdmf`.
+/// The group of step k of an adaptive result: `/steps/000`, `/steps/001`,
+/// ... (`hdf5_io` writes them, the XDMF points into them).
+pub fn step_group(k: usize) -> String {
+    format!("/steps/{k:03}")
+}
+
 pub fn xdmf_path(h5_path: &Path) -> PathBuf {
     h5_path.with_extension("xdmf")
 }
@@ -94,7 +100,7 @@ pub fn render_steps(h5_file_name: &str, steps: &[(&Mesh, &ResultData)]) -> Strin
     open_document(&mut out);
     out.push_str("    <Grid Name=\"steps\" GridType=\"Collection\" CollectionType=\"Temporal\">\n");
     for (k, (mesh, data)) in steps.iter().enumerate() {
-        let group = super::hdf5_io::step_group(k);
+        let group = step_group(k);
         let in_3d = data.surface.is_some();
         render_grid(
             &mut out,

@@ -36,8 +36,8 @@ use super::{
     factorize_system, initial_multiplier, named, ContactProblem, ReportBuilder, SolveReport,
 };
 use crate::error::{Error, Result};
-use crate::linalg::Solves;
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
+use crate::linalg::{LinearOptions, Solves};
 use crate::solvers::StepForm;
 use std::time::Instant;
 
@@ -69,6 +69,7 @@ pub struct DualAcceleratedOptions {
     /// the run is declared stagnant.
     pub stall_window: usize,
     pub show_progress: bool,
+    pub linear: LinearOptions,
 }
 
 impl Default for DualAcceleratedOptions {
@@ -83,6 +84,7 @@ impl Default for DualAcceleratedOptions {
             initial_lambda: None,
             stall_window: 5000,
             show_progress: false,
+            linear: LinearOptions::default(),
         }
     }
 }
@@ -98,18 +100,23 @@ pub fn dual_accelerated(
     problem: &ContactProblem,
     options: &DualAcceleratedOptions,
 ) -> Result<SolveReport> {
+    options.linear.run(|| fista(problem, options))
+}
+
+/// [`dual_accelerated`] on the linear solver's threads.
+fn fista(problem: &ContactProblem, options: &DualAcceleratedOptions) -> Result<SolveReport> {
     let Some(c) = problem.constraint.as_ref() else {
-        return solve_unconstrained(problem);
+        return solve_unconstrained(problem, &options.linear);
     };
     let start = Instant::now();
-    let (factorization, factor_seconds) = factorize_system(problem, Solves::Many)?;
+    let (factorization, factor_seconds) = factorize_system(problem, Solves::Many, &options.linear)?;
     let m = c.obstacle.len();
     let (lipschitz, s_max) = match options.lipschitz {
         Some(l) => (l, f64::NAN),
         None => {
             let s = estimate_dual_spectrum(
                 problem,
-                &factorization,
+                factorization.as_ref(),
                 StepForm::Mean,
                 options.lanczos_steps,
             )

@@ -22,7 +22,7 @@ pub mod uzawa;
 pub mod uzawa_split;
 
 use crate::error::Result;
-use crate::linalg::{factorize_checked_with, Factorization, InteriorGroups, MatrixKind, Solves};
+use crate::linalg::{factor_once, Factors, InteriorGroups, MatrixKind, Solves, SystemPattern};
 use crate::progress::IterationProgress;
 use active_set::{active_set, ActiveSetOptions};
 use dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
@@ -33,6 +33,7 @@ use std::time::Instant;
 use uzawa::{uzawa, UzawaOptions};
 use uzawa_split::{uzawa_split, UzawaSplitOptions};
 
+pub use crate::linalg::{LinearMethod, LinearOptions};
 pub use measures::{History, KktMeasures};
 
 /// The inequality constraint C x ≥ g with its multiplier space.
@@ -90,11 +91,6 @@ impl ContactProblem {
 
     /// A x, whichever way A is stored.
     pub fn product(&self, x: &[f64]) -> Vec<f64> {
-        assert_eq!(
-            self.matrix.ncols(),
-            self.n(),
-            "A is read while taken out (`ContactProblem::take_matrix`)"
-        );
         crate::linalg::product(&self.matrix, self.kind, x)
     }
 
@@ -117,20 +113,15 @@ impl ContactProblem {
     /// 4838 → 4254 MB).
     pub fn store_lower_triangle(&mut self) {
         if self.kind != MatrixKind::General {
-            let whole = self.take_matrix();
+            let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
+            let whole = std::mem::replace(&mut self.matrix, empty);
             self.matrix = crate::linalg::into_lower_triangle(whole);
         }
     }
-
-    /// Takes A out, leaving a 0 × 0 matrix (nothing reads A until the
-    /// taker puts it back).
-    pub(crate) fn take_matrix(&mut self) -> SparseColMat<usize, f64> {
-        let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
-        std::mem::replace(&mut self.matrix, empty)
-    }
 }
 
-/// A method and its parameters: what [`solve`] runs.
+/// A method and its parameters: what [`solve`] runs. Each method's options
+/// carry the linear solver it uses ([`LinearOptions`]).
 #[derive(Debug, Clone)]
 pub enum SolverOptions {
     /// The thesis' Uzawa iteration (one factorisation of A, done by [`solve`]).
@@ -140,36 +131,49 @@ pub enum SolverOptions {
     ActiveSet(ActiveSetOptions),
 }
 
+impl SolverOptions {
+    /// The linear solver the method uses.
+    pub fn linear(&self) -> LinearOptions {
+        match self {
+            SolverOptions::Uzawa(o) => o.linear,
+            SolverOptions::UzawaSplit(o) => o.linear,
+            SolverOptions::DualAccelerated(o) => o.linear,
+            SolverOptions::ActiveSet(o) => o.linear,
+        }
+    }
+}
+
 /// Solves a contact problem by the method of `options`; a problem without
 /// constraint is one linear solve, whatever the method. `probes` are
-/// recorded per iteration by the methods that take them (Uzawa). `problem`
-/// is mutable for the active set alone, which builds its Newton matrix in
-/// A's arrays and gives A back at the end (`active_set`).
+/// recorded per iteration by the methods that take them (Uzawa). The
+/// kernels run on the linear solver's threads.
 pub fn solve(
-    problem: &mut ContactProblem,
+    problem: &ContactProblem,
     options: &SolverOptions,
     probes: &[Probe],
 ) -> Result<SolveReport> {
+    let linear = options.linear();
     if problem.constraint.is_none() {
-        return uzawa::solve_unconstrained(problem);
+        return uzawa::solve_unconstrained(problem, &linear);
     }
     match options {
-        SolverOptions::Uzawa(o) => {
+        SolverOptions::Uzawa(o) => linear.run(|| {
             // One factorisation, reused by every iteration.
-            let (factorization, seconds) = factorize_system(problem, Solves::Many)?;
-            uzawa(problem, &factorization, seconds, o, probes)
-        }
+            let (factors, seconds) = factorize_system(problem, Solves::Many, &linear)?;
+            uzawa(problem, factors.as_ref(), seconds, o, probes)
+        }),
         SolverOptions::UzawaSplit(o) => uzawa_split(problem, o),
         SolverOptions::DualAccelerated(o) => dual_accelerated(problem, o),
         SolverOptions::ActiveSet(o) => active_set(problem, o),
     }
 }
 
-/// The checked factorisation of A, and the seconds it took.
+/// The checked factors of A by the `linear` solver, and the seconds they took.
 pub(crate) fn factorize_system(
     problem: &ContactProblem,
     solves: Solves,
-) -> Result<(Factorization, f64)> {
+    linear: &LinearOptions,
+) -> Result<(Box<dyn Factors>, f64)> {
     let t = Instant::now();
     // Condensation pays per solve (fewer, denser factor entries) but its plan
     // costs more than faer's symbolic analysis, and AMD eliminates the bubbles
@@ -179,14 +183,15 @@ pub(crate) fn factorize_system(
         Solves::Many => problem.interior.as_ref(),
         Solves::Few => None,
     };
-    let factorization = factorize_checked_with(
-        &problem.matrix,
-        problem.kind,
+    let pattern = SystemPattern {
+        matrix: &problem.matrix,
+        kind: problem.kind,
         solves,
         interior,
-        problem.kind.describe(),
-    )?;
-    Ok((factorization, t.elapsed().as_secs_f64()))
+        what: problem.kind.describe(),
+    };
+    let factors = factor_once(pattern, linear)?;
+    Ok((factors, t.elapsed().as_secs_f64()))
 }
 
 /// What a solver returns: the last iterate and how it got there.

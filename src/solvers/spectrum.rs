@@ -7,7 +7,7 @@
 //! Uzawa with a fixed step converges for 0 < α < 2/s_max.
 
 use super::ContactProblem;
-use crate::linalg::Factorization;
+use crate::linalg::Factors;
 use crate::linalg::{mat_t_vec, mat_vec};
 use crate::solvers::StepForm;
 
@@ -24,7 +24,7 @@ pub struct SpectrumEstimate {
 /// Runs `steps` Lanczos steps with full reorthogonalisation.
 pub fn estimate_dual_spectrum(
     problem: &ContactProblem,
-    factorization: &Factorization,
+    factorization: &dyn Factors,
     step_form: StepForm,
     steps: usize,
 ) -> Option<SpectrumEstimate> {

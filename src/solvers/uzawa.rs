@@ -20,7 +20,7 @@ use super::{
 };
 use crate::error::{Error, Result};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
-use crate::linalg::{Factorization, Solves};
+use crate::linalg::{Factors, LinearOptions, Solves};
 use crate::solvers::{DualNorm, Probe, StepForm, StopRule};
 use std::time::Instant;
 
@@ -68,6 +68,7 @@ pub struct UzawaOptions {
     pub show_progress: bool,
     /// λ⁰ (e.g. an adaptive step's multiplier carried to the new mesh); zero if absent.
     pub initial_lambda: Option<Vec<f64>>,
+    pub linear: LinearOptions,
 }
 
 /// α by `step`, and the Lanczos estimate of the spectrum of S it comes from
@@ -75,7 +76,7 @@ pub struct UzawaOptions {
 /// records it and divergence is judged against it).
 pub fn uzawa_alpha(
     problem: &ContactProblem,
-    factorization: &Factorization,
+    factorization: &dyn Factors,
     step: UzawaStep,
     step_form: StepForm,
 ) -> Result<(f64, Option<SpectrumEstimate>)> {
@@ -95,15 +96,18 @@ pub fn uzawa_alpha_of(
     problem: &ContactProblem,
     step: UzawaStep,
     step_form: StepForm,
+    linear: &LinearOptions,
 ) -> Result<f64> {
-    let (factorization, _) = factorize_system(problem, Solves::Many)?;
-    Ok(uzawa_alpha(problem, &factorization, step, step_form)?.0)
+    linear.run(|| {
+        let (factors, _) = factorize_system(problem, Solves::Many, linear)?;
+        Ok(uzawa_alpha(problem, factors.as_ref(), step, step_form)?.0)
+    })
 }
 
 /// One linear solve: the problem without contact.
 pub fn solve_linear(
     problem: &ContactProblem,
-    factorization: &Factorization,
+    factorization: &dyn Factors,
     factor_seconds: f64,
 ) -> Result<SolveReport> {
     let mut report = ReportBuilder::linear(factor_seconds);
@@ -115,16 +119,21 @@ pub fn solve_linear(
 }
 
 /// The problem without contact factorised and solved once.
-pub fn solve_unconstrained(problem: &ContactProblem) -> Result<SolveReport> {
-    let (factorization, seconds) = factorize_system(problem, Solves::Few)?;
-    solve_linear(problem, &factorization, seconds)
+pub fn solve_unconstrained(
+    problem: &ContactProblem,
+    linear: &LinearOptions,
+) -> Result<SolveReport> {
+    linear.run(|| {
+        let (factors, seconds) = factorize_system(problem, Solves::Few, linear)?;
+        solve_linear(problem, factors.as_ref(), seconds)
+    })
 }
 
 /// Uzawa with the one factorisation of A (`factor_seconds` spent on it):
 /// chooses α ([`uzawa_alpha`]), then iterates (module docs).
 pub fn uzawa(
     problem: &ContactProblem,
-    factorization: &Factorization,
+    factorization: &dyn Factors,
     factor_seconds: f64,
     options: &UzawaOptions,
     probes: &[Probe],
@@ -256,7 +265,7 @@ pub fn uzawa(
 /// Returns |A| and the bound (None when A is empty).
 fn active_set_bound(
     problem: &ContactProblem,
-    factorization: &Factorization,
+    factorization: &dyn Factors,
     step_form: StepForm,
     lambda: &[f64],
 ) -> (usize, Option<f64>) {

@@ -56,7 +56,7 @@ use super::monitor::Monitor;
 use super::spectrum::estimate_dual_spectrum;
 use super::{Constraint, ContactProblem, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{factorize_checked_with, MatrixKind, Solves};
+use crate::linalg::{factor_once, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::linalg::{mat_t_vec, mat_vec, norm_inf};
 use crate::solvers::StepForm;
 use faer::sparse::{SparseColMat, Triplet};
@@ -97,6 +97,7 @@ pub struct UzawaSplitOptions {
     /// the run is declared stagnant.
     pub stall_window: usize,
     pub show_progress: bool,
+    pub linear: LinearOptions,
 }
 
 impl Default for UzawaSplitOptions {
@@ -109,6 +110,7 @@ impl Default for UzawaSplitOptions {
             psi_riesz: PsiRiesz::Jacobi,
             stall_window: 20_000,
             show_progress: false,
+            linear: LinearOptions::default(),
         }
     }
 }
@@ -161,6 +163,11 @@ fn stack_rows(
 
 /// Solves a contact problem by the first splitting (module docs).
 pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Result<SolveReport> {
+    options.linear.run(|| first_splitting(problem, options))
+}
+
+/// [`uzawa_split`] on the linear solver's threads.
+fn first_splitting(problem: &ContactProblem, options: &UzawaSplitOptions) -> Result<SolveReport> {
     let start = Instant::now();
     let (n, np) = (problem.n(), problem.n_primal);
     let n_psi = n - np;
@@ -176,13 +183,14 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
     }
     let t = Instant::now();
     let interior = problem.interior.as_ref().map(|g| g.restricted_to(np));
-    let factorization = factorize_checked_with(
-        &k_block,
-        MatrixKind::SymmetricPositiveDefinite,
-        Solves::Many,
-        interior.as_ref(),
-        "primal block K",
-    )?;
+    let pattern = SystemPattern {
+        matrix: &k_block,
+        kind: MatrixKind::SymmetricPositiveDefinite,
+        solves: Solves::Many,
+        interior: interior.as_ref(),
+        what: "primal block K",
+    };
+    let factorization = factor_once(pattern, &options.linear)?;
     let factor_seconds = t.elapsed().as_secs_f64();
 
     // Riesz weights of ψ.
@@ -238,7 +246,12 @@ pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             constraint: Some(constraint),
             interior: None,
         };
-        estimate_dual_spectrum(&sub, &factorization, StepForm::Mean, options.lanczos_steps)
+        estimate_dual_spectrum(
+            &sub,
+            factorization.as_ref(),
+            StepForm::Mean,
+            options.lanczos_steps,
+        )
     };
     let t = Instant::now();
     let s_c = c_u.as_ref().filter(|_| m > 0).and_then(|c| {

@@ -443,6 +443,7 @@ pub fn fixed_uzawa_options(
         dual_norm: obstacle_fem::solvers::DualNorm::L2,
         show_progress: false,
         initial_lambda: None,
+        linear: Default::default(),
     }
 }
 
