@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
 
 /// The first line of every failure marker.
-pub const HEADER: &str = "# obstacle failure marker: this run failed numerically\n";
+pub use super::transaction::MARKER_HEADER as HEADER;
 
 /// A failure marker path, checked against the run it belongs to.
 pub struct FailureMarker {

@@ -315,7 +315,7 @@ pub(crate) fn is_output_extension(ext: &str) -> bool {
 }
 
 /// Checks that a failure marker may be written or removed at `target`:
-/// nothing there, or a marker (it begins with [`super::marker::HEADER`]),
+/// nothing there, or a marker (it begins with [`MARKER_HEADER`]),
 /// and not one of `inputs`.
 pub(crate) fn check_marker_target(target: &Path, inputs: &[PathBuf]) -> Result<()> {
     let inputs: Vec<PathBuf> = inputs
@@ -395,6 +395,10 @@ enum OutputKind {
     Workflow,
 }
 
+/// The first line of every failure marker (`solve --failure-marker`,
+/// `output::marker`): a file there without it is not replaced.
+pub const MARKER_HEADER: &str = "# obstacle failure marker: this run failed numerically\n";
+
 /// The first line of every file `study --workflow snakemake` writes: a
 /// Snakefile or profile without it is not replaced.
 pub const WORKFLOW_HEADER: &str =
@@ -421,7 +425,7 @@ impl OutputKind {
             OutputKind::Xml => text().starts_with('<'),
             OutputKind::Png => head.starts_with(b"\x89PNG\r\n\x1a\n"),
             OutputKind::Text => !head.contains(&0),
-            OutputKind::Marker => head.starts_with(super::marker::HEADER.as_bytes()),
+            OutputKind::Marker => head.starts_with(MARKER_HEADER.as_bytes()),
             OutputKind::Workflow => head.starts_with(WORKFLOW_HEADER.as_bytes()),
         }
     }

@@ -31,8 +31,9 @@
 //! [`rigid_plane_constraint`] the contact with the plane z = 0, and
 //! [`scale_tangency_multiplier`] rebalances the ψ block for large ρ.
 
+pub mod tied_strains;
+
 use super::geometry::{obstacle_function, Chart, Material, SurfacePoint};
-use super::tied_strains::TiedStrains;
 use crate::assembly::{eliminate, quad_points, DofNumbering, ElementMatrix, Triplets};
 use crate::linalg::MatrixKind;
 use crate::mesh::Mesh;
@@ -42,6 +43,7 @@ use crate::solvers::{Constraint, ContactProblem};
 use crate::space::{Element, Space, TriangleGeometry};
 use faer::sparse::SparseColMat;
 use nalgebra::{Matrix2, Vector3};
+use tied_strains::TiedStrains;
 
 /// Number of components of U = (u, r) in the thesis' layout.
 pub const N_U_COMPONENTS: usize = 6;

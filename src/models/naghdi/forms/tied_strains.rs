@@ -32,8 +32,8 @@
 //! Every map is linear in the strain; the element matrix integrates the
 //! interpolated strains with Radon's rule and no reduced-integration weight.
 
-use super::forms::{field_strains, FieldRole, ShellField, StrainVector, DELTA, GAMMA};
-use super::geometry::Chart;
+use super::super::geometry::Chart;
+use super::{field_strains, FieldRole, ShellField, StrainVector, DELTA, GAMMA};
 use crate::quadrature::{SegmentRule, TriangleRule};
 use crate::space::{Element, TriangleGeometry};
 use nalgebra::{DMatrix, DVector};
