@@ -557,20 +557,12 @@ pub fn element_matrices(
                 Vector3::zeros()
             };
             // E: strains of every local U basis function; DE = D·E.
-            let mut i = 0;
-            for field in &u_fields {
-                let basis = field.element.basis(q.lambda);
-                for k in 0..basis.n {
-                    let grad = g.gradient(basis.d_lambda[k]);
-                    e[i] = field_strains(&p, field.role, basis.values[k], grad);
-                    if pass.full {
-                        if let FieldRole::Displacement(c) = field.role {
-                            el.load[i] += q.weight * force[c] * basis.values[k] * p.sqrt_a;
-                        }
-                    }
-                    i += 1;
+            for_each_shape_strain(&g, &u_fields, &p, q.lambda, |i, role, value, strains| {
+                e[i] = strains;
+                if let (FieldRole::Displacement(c), true) = (role, pass.full) {
+                    el.load[i] += q.weight * force[c] * value * p.sqrt_a;
                 }
-            }
+            });
             if let Some(tied) = &tied {
                 tied.tie(q.lambda, &mut e);
             }
@@ -598,6 +590,33 @@ pub fn element_matrices(
         }
     }
     el
+}
+
+/// Calls `visit(i, role, value, strains)` for every local U shape function i
+/// at the point λ of T (the fields in block order, each with its element's
+/// local basis): its field's role, its value and its generalised strains at
+/// the chart point `p`.
+fn for_each_shape_strain(
+    g: &TriangleGeometry,
+    fields: &[&ShellField],
+    p: &SurfacePoint,
+    lambda: [f64; 3],
+    mut visit: impl FnMut(usize, FieldRole, f64, StrainVector),
+) {
+    let mut i = 0;
+    for field in fields {
+        let basis = field.element.basis(lambda);
+        for k in 0..basis.n {
+            let grad = g.gradient(basis.d_lambda[k]);
+            visit(
+                i,
+                field.role,
+                basis.values[k],
+                field_strains(p, field.role, basis.values[k], grad),
+            );
+            i += 1;
+        }
+    }
 }
 
 /// Scales the membrane, bending and shear blocks of D (PSRI passes).

@@ -33,7 +33,7 @@
 //! interpolated strains with Radon's rule and no reduced-integration weight.
 
 use super::super::geometry::Chart;
-use super::{field_strains, FieldRole, ShellField, StrainVector, DELTA, GAMMA};
+use super::{for_each_shape_strain, FieldRole, ShellField, StrainVector, DELTA, GAMMA, N_STRAINS};
 use crate::quadrature::{SegmentRule, TriangleRule};
 use crate::space::{Element, TriangleGeometry};
 use nalgebra::{DMatrix, DVector};
@@ -164,14 +164,14 @@ impl TiedStrain {
     fn new(
         group: TiedGroup,
         g: &TriangleGeometry,
+        interpolation: &[Functional],
         strains: &PointStrains,
         projected: &[bool],
     ) -> Self {
-        let interpolation = group.functionals(g);
         let projection = group.projection_functionals();
-        let interpolated = strains.moments(group, &interpolation);
+        let interpolated = strains.moments(group, interpolation);
         let projected_moments = strains.moments(group, &projection);
-        let interpolation_lu = moment_matrix(group, g, &interpolation).lu();
+        let interpolation_lu = moment_matrix(group, g, interpolation).lu();
         let projection_lu = moment_matrix(group, g, &projection).lu();
         let coefficients = projected
             .iter()
@@ -217,11 +217,21 @@ impl TiedStrains {
                 (0..n).map(move |k| bubble_field && k == n - 1)
             })
             .collect();
-        let strains = PointStrains::new(g, fields, chart);
-        let tie = |group| TiedStrain::new(group, g, &strains, &displacement_bubble);
+        let groups = [TiedGroup::Membrane, TiedGroup::Shear];
+        let functionals = groups.map(|group| group.functionals(g));
+        let strains = PointStrains::new(g, fields, chart, functionals.iter().flatten());
+        let tie = |k: usize| {
+            TiedStrain::new(
+                groups[k],
+                g,
+                &functionals[k],
+                &strains,
+                &displacement_bubble,
+            )
+        };
         TiedStrains {
             geometry: *g,
-            groups: [tie(TiedGroup::Membrane), tie(TiedGroup::Shear)],
+            groups: [tie(0), tie(1)],
         }
     }
 
@@ -241,9 +251,10 @@ impl TiedStrains {
     }
 }
 
-/// The strains of every local shape function at every point the functionals
-/// of both groups use (three Gauss points per edge, Radon's seven), each
-/// point's chart geometry evaluated once.
+/// The strains of every local shape function at every point the
+/// interpolation functionals of both groups use (three Gauss points per
+/// edge, Radon's seven, which the projections use too), each point's chart
+/// geometry evaluated once.
 struct PointStrains {
     points: Vec<[f64; 3]>,
     /// strains[p][i]: local shape function i at point p.
@@ -251,33 +262,26 @@ struct PointStrains {
 }
 
 impl PointStrains {
-    fn new(g: &TriangleGeometry, fields: &[&ShellField], chart: &Chart) -> Self {
+    fn new<'a>(
+        g: &TriangleGeometry,
+        fields: &[&ShellField],
+        chart: &Chart,
+        functionals: impl Iterator<Item = &'a Functional>,
+    ) -> Self {
         let mut points: Vec<[f64; 3]> = Vec::new();
-        for group in [TiedGroup::Membrane, TiedGroup::Shear] {
-            for functional in group.functionals(g) {
-                for (lambda, _) in functional {
-                    if !points.contains(&lambda) {
-                        points.push(lambda);
-                    }
-                }
+        for (lambda, _) in functionals.flatten() {
+            if !points.contains(lambda) {
+                points.push(*lambda);
             }
         }
+        let n: usize = fields.iter().map(|f| f.element.n_local()).sum();
         let strains = points
             .iter()
             .map(|&lambda| {
+                let mut row = vec![[0.0; N_STRAINS]; n];
                 let p = chart.at(g.point(lambda));
-                fields
-                    .iter()
-                    .flat_map(|field| {
-                        let basis = field.element.basis(lambda);
-                        (0..basis.n)
-                            .map(|k| {
-                                let grad = g.gradient(basis.d_lambda[k]);
-                                field_strains(&p, field.role, basis.values[k], grad)
-                            })
-                            .collect::<Vec<_>>()
-                    })
-                    .collect()
+                for_each_shape_strain(g, fields, &p, lambda, |i, _, _, strains| row[i] = strains);
+                row
             })
             .collect();
         PointStrains { points, strains }
