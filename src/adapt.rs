@@ -179,12 +179,12 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
             report,
         } = solve_on(scene, &mesh, Start::Carried(&carried), false, &mut |_| {})?;
         let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
-        let estimator =
-            numeric_attr(&data.root_attrs, "estimator").ok_or_else(|| Error::Scene {
-                file: scene.source.clone(),
-                field: "adapt".into(),
-                reason: format!("the {} model has no estimator", scene.model.name()),
-            })?;
+        let estimator = numeric_attr(&data.root_attrs, "estimator").ok_or_else(|| {
+            scene.error(
+                "adapt",
+                format!("the {} model has no estimator", scene.model.name()),
+            )
+        })?;
         let seconds = start.elapsed().as_secs_f64();
         data.root_attrs.extend([
             ("adapt_step".to_string(), AttrValue::I64(k as i64)),
@@ -310,11 +310,10 @@ pub type CurvePoint = (f64, f64, f64);
 /// meshing included; the adaptive one with remeshing and transfer).
 pub fn compare_runs(scene: &Scene, out_dir: &Path) -> Result<(Vec<StepRow>, Vec<CurvePoint>)> {
     if scene.adapt.is_none() || !scene.output.errors {
-        return Err(Error::Scene {
-            file: scene.source.clone(),
-            field: "adapt".into(),
-            reason: "`obstacle adapt` compares an [adapt] scene with `output.errors = true` against uniform meshes".into(),
-        });
+        return Err(scene.error(
+            "adapt",
+            "`obstacle adapt` compares an [adapt] scene with `output.errors = true` against uniform meshes",
+        ));
     }
     let label = compare_label(scene);
     let (_, rows) = run_adaptive(scene, &out_dir.join(format!("{label}.h5")))?;

@@ -272,14 +272,6 @@ pub struct UzawaPlan {
     pub thesis_stop: Option<(f64, &'static str)>,
 }
 
-fn scene_error(scene: &Scene, field: &str, reason: impl Into<String>) -> Error {
-    Error::Scene {
-        file: scene.source.clone(),
-        field: field.into(),
-        reason: reason.into(),
-    }
-}
-
 /// The Uzawa iteration FreeFEM runs for `scene` (module docs); `alpha` is the
 /// resolved step.
 pub fn uzawa_plan(scene: &Scene, alpha: f64, iterations: Option<usize>) -> UzawaPlan {
@@ -337,15 +329,13 @@ pub fn script_args(
     let f = |x: f64| format!("{x:e}");
     let mut a: Vec<String> = vec!["-mesh".into(), msh.display().to_string()];
     if scene.element == ElementPair::P2bMitc {
-        return Err(scene_error(
-            scene,
+        return Err(scene.error(
             "element",
             "the FreeFEM twins are p1b-p0 and p2b-psri; p2b-mitc has none (docs/shell-benchmarks.md says what it is compared with)",
         ));
     }
     if scene.mesh.dirichlet.is_some() {
-        return Err(scene_error(
-            scene,
+        return Err(scene.error(
             "mesh.dirichlet",
             "the FreeFEM script clamps the whole boundary: remove the key to compare",
         ));
@@ -353,11 +343,9 @@ pub fn script_args(
     match scene.model {
         Model::Membrane => {
             let Some(obstacle) = &scene.obstacle else {
-                return Err(scene_error(
-                    scene,
-                    "obstacle",
-                    "the FreeFEM membrane script needs an obstacle",
-                ));
+                return Err(
+                    scene.error("obstacle", "the FreeFEM membrane script needs an obstacle")
+                );
             };
             // An expression load or obstacle reaches the script as `func`s
             // (`scene_functions`); -g, -height, -curvature stay its defaults.
@@ -369,8 +357,7 @@ pub fn script_args(
                 .unwrap_or(0.0);
             if let Some(g_d) = &scene.mesh.dirichlet_value {
                 if g_d.as_constant() != Some(0.0) {
-                    return Err(scene_error(
-                        scene,
+                    return Err(scene.error(
                         "mesh.dirichlet_value",
                         "the FreeFEM membrane script holds u = 0 on the boundary: remove the key to compare",
                     ));
@@ -393,8 +380,7 @@ pub fn script_args(
         Model::Naghdi => {
             let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
             let Chart::HyperbolicParaboloid { r, offset } = shell.chart else {
-                return Err(scene_error(
-                    scene,
+                return Err(scene.error(
                     "shell.chart",
                     format!(
                         "the FreeFEM script has the hyperbolic-paraboloid chart only, not {}",
@@ -403,26 +389,20 @@ pub fn script_args(
                 ));
             };
             if shell.clamped.is_some() {
-                return Err(scene_error(
-                    scene,
+                return Err(scene.error(
                     "shell.clamped",
                     "the FreeFEM script clamps the whole boundary: remove the key to compare",
                 ));
             }
             if scene.load.as_ref().is_some_and(|l| !l.edge.is_empty()) {
-                return Err(scene_error(
-                    scene,
-                    "load.edge",
-                    "the FreeFEM script has no edge loads",
-                ));
+                return Err(scene.error("load.edge", "the FreeFEM script has no edge loads"));
             }
             if scene
                 .obstacle
                 .as_ref()
                 .is_some_and(|o| o.multiplier == Some(ContactMultiplier::P1))
             {
-                return Err(scene_error(
-                    scene,
+                return Err(scene.error(
                     "obstacle.multiplier",
                     "the FreeFEM script has P0 contact multipliers only (multiplier = \"p0\", the default)",
                 ));
@@ -477,8 +457,7 @@ fn psri_args(scene: &Scene, mesh: &Mesh) -> Result<Vec<String>> {
             ("load.point", !load.point.is_empty()),
         ] {
             if given {
-                return Err(scene_error(
-                    scene,
+                return Err(scene.error(
                     key,
                     format!("the FreeFEM script {PSRI_SCRIPT} has constant body forces only, not `{key}`"),
                 ));
@@ -651,8 +630,7 @@ fn constant_only(scene: &Scene, key: &str, value: Option<&Expression>) -> Result
     match value {
         None => Ok(0.0),
         Some(e) => e.as_constant().ok_or_else(|| {
-            scene_error(
-                scene,
+            scene.error(
                 key,
                 format!(
                     "the FreeFEM script takes a number here, not the expression \"{}\"",
@@ -667,11 +645,9 @@ fn constant_only(scene: &Scene, key: &str, value: Option<&Expression>) -> Result
 fn plane_level_args(scene: &Scene) -> Result<Vec<String>> {
     match &scene.obstacle {
         None => Ok(Vec::new()),
-        Some(o) if o.shape != ObstacleShape::RigidPlane => Err(scene_error(
-            scene,
-            "obstacle.shape",
-            "the shell's obstacle is the rigid plane",
-        )),
+        Some(o) if o.shape != ObstacleShape::RigidPlane => {
+            Err(scene.error("obstacle.shape", "the shell's obstacle is the rigid plane"))
+        }
         Some(o) => Ok(vec!["-level".into(), format!("{:e}", o.level())]),
     }
 }
@@ -764,8 +740,7 @@ fn psri_weight_rule(scene: &Scene, mesh: &Mesh, thickness: f64) -> Result<PsriWe
                 .all(|(t, &w)| same_weight(w, rule.weight(mesh, t, thickness)))
         })
         .ok_or_else(|| {
-            scene_error(
-                scene,
+            scene.error(
                 "element",
                 format!(
                     "the Rust PSRI weight (forms.rs psri_weight) follows neither rule of {PSRI_SCRIPT} (-psriweight diameter, triangle)"
@@ -817,9 +792,7 @@ pub fn psri_fix_spec(scene: &Scene, mesh: &Mesh) -> Result<String> {
         )?
         .expect("one name given")[0];
         if b.normal.is_some_and(|n| n.axis().is_none()) {
-            return Err(scene_error(
-                scene,
-                &format!("{field}.normal"),
+            return Err(scene.error(&format!("{field}.normal"),
                 format!("the FreeFEM twin {PSRI_SCRIPT} fixes fields on whole boundary parts (-fix) and cannot state a symmetry plane of oblique normal"),
             ));
         }
@@ -834,8 +807,7 @@ pub fn psri_fix_spec(scene: &Scene, mesh: &Mesh) -> Result<String> {
             BoundaryCondition::Free => Vec::new(),
             BoundaryCondition::Symmetry => {
                 let Some(n) = n else {
-                    return Err(scene_error(
-                        scene,
+                    return Err(scene.error(
                         &format!("{field}.normal"),
                         "a symmetry plane needs its normal",
                     ));
@@ -858,8 +830,7 @@ pub fn psri_fix_spec(scene: &Scene, mesh: &Mesh) -> Result<String> {
                 .iter()
                 .map(|name| {
                     PSRI_FIELDS.iter().position(|f| f == name).ok_or_else(|| {
-                        scene_error(
-                            scene,
+                        scene.error(
                             &format!("{field}.fix"),
                             format!(
                                 "part `{}`: `{name}` is no field of element {}: {}",
@@ -910,8 +881,7 @@ fn symmetry_rotations(
                     continue;
                 }
                 if !along(1 - be) {
-                    return Err(scene_error(
-                        scene,
+                    return Err(scene.error(
                         "shell.boundary.normal",
                         format!(
                             "part `{part}`: at ({:.6}, {:.6}) neither tangent a_1 nor a_2 of the {} chart lies in the symmetry plane (normal e{}), so r·e{} = 0 is no condition on one rotation component",
@@ -932,8 +902,7 @@ fn symmetry_rotations(
                             v.join(", ")
                         }
                     };
-                    return Err(scene_error(
-                        scene,
+                    return Err(scene.error(
                         "shell.boundary.normal",
                         format!(
                             "part `{part}`: the symmetry plane (normal e{}) fixes θ component(s) {} at ({:.6}, {:.6}) but {} at ({:.6}, {:.6}) on the {} chart; the FreeFEM twin {PSRI_SCRIPT} fixes fields on whole boundary parts (-fix) and cannot state this condition",

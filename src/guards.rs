@@ -144,17 +144,13 @@ pub fn check_memory(scene: &Scene, e: &Estimate, when: &str) -> Result<()> {
     } else {
         "mesh.h"
     };
-    Err(Error::Scene {
-        file: scene.source.clone(),
-        field: field.into(),
-        reason: format!(
+    Err(scene.error(field, format!(
             "{when}: about {:.3e} triangles and {:.3e} unknowns need ~{:.3} GB, above the limit {:.3} GB = {source}; a coarser mesh, or set mesh.memory_limit_gb to allow more",
             e.triangles,
             e.unknowns,
             e.bytes / 1e9,
             limit / 1e9
-        ),
-    })
+        )))
 }
 
 /// The length scales a mesh may have: coordinates up to 1e50 and edges
@@ -203,14 +199,10 @@ fn keys_of_load(scene: &Scene) -> &'static str {
 /// one free unknown; otherwise an error naming the scene keys and the mesh.
 pub fn check_assembled(scene: &Scene, mesh: &Mesh, p: &ContactProblem) -> Result<()> {
     let blame = |field: &str, what: &str, keys: &str, k: usize, v: f64| {
-        Error::Scene {
-        file: scene.source.clone(),
-        field: field.into(),
-        reason: format!(
+        scene.error(field, format!(
             "the assembled {what} is not finite (entry {k} = {v}) on the mesh {}: {keys} overflow f64 (too large or too small in magnitude)",
             mesh.source.display()
-        ),
-    }
+        ))
     };
     let first_bad = |v: &[f64]| v.iter().position(|x| !x.is_finite()).map(|k| (k, v[k]));
     if let Some((k, v)) = first_bad(p.matrix.val()) {
@@ -288,14 +280,10 @@ pub fn name_matrix_inputs(scene: &Scene, e: Error) -> Error {
                 Model::Membrane => "mesh",
                 Model::Naghdi => "shell",
             };
-            Error::Scene {
-                file: scene.source.clone(),
-                field: field.into(),
-                reason: format!(
+            scene.error(field, format!(
                     "{stage}: {measure}: {reason}; the matrix is built from {}: check their magnitudes and ratios",
                     keys_of_matrix(scene)
-                ),
-            }
+                ))
         }
         e => e,
     }

@@ -984,7 +984,8 @@ impl Scene {
         Ok(scene)
     }
 
-    fn error(&self, field: &str, reason: impl Into<String>) -> Error {
+    /// An error in this scene's `field` (dotted key), naming its file.
+    pub fn error(&self, field: &str, reason: impl Into<String>) -> Error {
         Error::Scene {
             file: self.source.clone(),
             field: field.to_string(),

@@ -66,14 +66,10 @@ impl<'m> MembraneSystem<'m> {
         )?;
         let fixed = u_space.boundary_dof_mask(tags.as_deref());
         if !fixed.iter().any(|&f| f) {
-            return Err(Error::Scene {
-                file: scene.source.clone(),
-                field: "mesh.dirichlet".into(),
-                reason: format!(
+            return Err(scene.error("mesh.dirichlet", format!(
                     "no dof is fixed (the mesh {} has no boundary line there): with natural boundary conditions alone −Δu = g determines u only up to a constant, and the problem is singular",
                     mesh.source.display()
-                ),
-            });
+                )));
         }
         let numbering = DofNumbering::from_fixed_mask(&fixed);
         let load = scene
@@ -221,16 +217,12 @@ impl<'m> MembraneSystem<'m> {
             Element::P0 => ("in the triangle with centroid", "∫_T ψ"),
             _ => ("at the vertex", "∫ψ μ_i (μ_i its hat function)"),
         };
-        Err(Error::Scene {
-            file: scene.source.clone(),
-            field: "obstacle.upper".into(),
-            reason: format!(
+        Err(scene.error("obstacle.upper", format!(
                 "the bounds' integrated moments cross: infeasible: {node} ({x:.6}, {y:.6}) obstacle.lower's moment {moment} is {:.6e}, above obstacle.upper's {:.6e}; the constraint holds u between these moments (element {}), so no u is admissible although the bounds are ordered at every vertex",
                 lower_rows[i],
                 upper_rows[i],
                 scene.element.name()
-            ),
-        })
+            )))
     }
 
     /// Full coefficient vector of u (Dirichlet values included).
@@ -360,14 +352,10 @@ fn dof_points(space: &Space) -> Vec<[f64; 2]> {
 fn check_obstacles_ordered(mesh: &Mesh, scene: &Scene, lower: &[f64], upper: &[f64]) -> Result<()> {
     let crossing = (0..mesh.n_vertices()).find(|&v| lower[v] > upper[v]);
     match crossing {
-        Some(v) => Err(Error::Scene {
-            file: scene.source.clone(),
-            field: "obstacle.upper".into(),
-            reason: format!(
+        Some(v) => Err(scene.error("obstacle.upper", format!(
                 "infeasible: at the vertex ({:.6}, {:.6}) the lower obstacle {:.6e} lies above the upper one {:.6e} (the two-sided problem needs lower ≤ upper)",
                 mesh.vertices[v][0], mesh.vertices[v][1], lower[v], upper[v]
-            ),
-        }),
+            ))),
         None => Ok(()),
     }
 }
@@ -382,11 +370,7 @@ fn check_exact_solution_applies(
     dirichlet_everywhere: bool,
 ) -> Result<()> {
     let refuse = |reason: String| {
-        Err(Error::Scene {
-            file: scene.source.clone(),
-            field: "output.errors".into(),
-            reason: format!("errors are measured against the exact solution on the unit disk (docs/formulation.md §1), but {reason}"),
-        })
+        Err(scene.error("output.errors", format!("errors are measured against the exact solution on the unit disk (docs/formulation.md §1), but {reason}")))
     };
     if scene.output.exact.is_some() {
         // The scene states its exact solution (checked finite in `ExactSolution::of`).

@@ -247,14 +247,10 @@ pub fn check_obstacle_against_boundary_values(
         .max(1.0);
     let fixed = || (0..mesh.n_vertices()).filter(|&v| mask[v]);
     let infeasible = |v: usize, what: String| {
-        Err(Error::Scene {
-            file: scene.source.clone(),
-            field: "obstacle".into(),
-            reason: format!(
+        Err(scene.error("obstacle", format!(
                 "infeasible: the {where_fixed} at ({:.6}, {:.6}) {what}, so no admissible displacement exists (the obstacle must admit the boundary values)",
                 mesh.vertices[v][0], mesh.vertices[v][1]
-            ),
-        })
+            )))
     };
     let worst_below =
         fixed().max_by(|&a, &b| (lower[a] - value(a)).total_cmp(&(lower[b] - value(b))));

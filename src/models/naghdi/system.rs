@@ -250,14 +250,10 @@ fn oblique_symmetry_ties(
                     .chain(masters.iter().map(|m| m.0))
                     .any(|i| tied[i])
                 {
-                    return Err(Error::Scene {
-                        file: scene.source.clone(),
-                        field: "shell.boundary.normal".into(),
-                        reason: format!(
+                    return Err(scene.error("shell.boundary.normal", format!(
                             "part `{}`: at ({:.6}, {:.6}) two symmetry planes of oblique normal meet; a node takes one oblique plane",
                             b.part, x[0], x[1]
-                        ),
-                    });
+                        )));
                 }
                 for i in std::iter::once(slave).chain(masters.iter().map(|m| m.0)) {
                     tied[i] = true;
@@ -329,13 +325,14 @@ fn fixed_mask(
                 let x = mesh.vertices[v];
                 (x[0] - support.at[0]).hypot(x[1] - support.at[1]) <= 1e-9 * scale
             })
-            .ok_or_else(|| Error::Scene {
-                file: scene.source.clone(),
-                field: format!("shell.support[{k}].at"),
-                reason: format!(
-                    "({}, {}) is no vertex of the mesh: a support fixes the dofs of one vertex",
-                    support.at[0], support.at[1]
-                ),
+            .ok_or_else(|| {
+                scene.error(
+                    &format!("shell.support[{k}].at"),
+                    format!(
+                        "({}, {}) is no vertex of the mesh: a support fixes the dofs of one vertex",
+                        support.at[0], support.at[1]
+                    ),
+                )
             })?;
         let key = format!("shell.support[{k}].fix");
         for name in &support.fix {
@@ -392,14 +389,10 @@ fn fix_tangent_symmetry(
                 continue; // a_β in the plane: θ^β is free.
             }
             if !along(other) {
-                return Err(Error::Scene {
-                    file: scene.source.clone(),
-                    field: "shell.boundary.normal".into(),
-                    reason: format!(
+                return Err(scene.error("shell.boundary.normal", format!(
                         "part `{part}`: at ({:.6}, {:.6}) neither tangent a_1 nor a_2 of the {} chart lies in the symmetry plane (normal e{}), so r·e{} = 0 is no condition on one rotation component",
                         x[0], x[1], chart.kind(), n + 1, n + 1
-                    ),
-                });
+                    )));
             }
             fixed[field.offset + d] = true;
         }
@@ -441,11 +434,10 @@ impl<'m> NaghdiSystem<'m> {
         let conditions = resolved_conditions(mesh, scene, shell)?;
         if let Some(x) = scene.output.probe {
             if PointLocator::new(mesh).locate(x).is_none() {
-                return Err(Error::Scene {
-                    file: scene.source.clone(),
-                    field: "output.probe".into(),
-                    reason: format!("the point ({}, {}) lies outside the mesh", x[0], x[1]),
-                });
+                return Err(scene.error(
+                    "output.probe",
+                    format!("the point ({}, {}) lies outside the mesh", x[0], x[1]),
+                ));
             }
         }
         let mut fixed = fixed_mask(mesh, scene, &layout, &chart, &conditions)?;
@@ -507,13 +499,14 @@ impl<'m> NaghdiSystem<'m> {
         }
         let mut point_loads = Vec::new();
         for (k, point) in load.map_or(&[][..], |l| &l.point[..]).iter().enumerate() {
-            let (t, l) = locator.locate(point.at).ok_or_else(|| Error::Scene {
-                file: scene.source.clone(),
-                field: format!("load.point[{k}].at"),
-                reason: format!(
-                    "({}, {}) lies outside the meshed domain ω",
-                    point.at[0], point.at[1]
-                ),
+            let (t, l) = locator.locate(point.at).ok_or_else(|| {
+                scene.error(
+                    &format!("load.point[{k}].at"),
+                    format!(
+                        "({}, {}) lies outside the meshed domain ω",
+                        point.at[0], point.at[1]
+                    ),
+                )
             })?;
             point_loads.push((t, l, point.force));
         }
@@ -1061,19 +1054,20 @@ fn field_named(
     context: &str,
     name: &str,
 ) -> Result<usize> {
-    layout.field_named(name).ok_or_else(|| Error::Scene {
-        file: scene.source.clone(),
-        field: key.into(),
-        reason: format!(
-            "{context}: `{name}` is no field of element {}: {}",
-            scene.element.name(),
-            layout
-                .fields
-                .iter()
-                .map(|f| f.name)
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
+    layout.field_named(name).ok_or_else(|| {
+        scene.error(
+            key,
+            format!(
+                "{context}: `{name}` is no field of element {}: {}",
+                scene.element.name(),
+                layout
+                    .fields
+                    .iter()
+                    .map(|f| f.name)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )
     })
 }
 
@@ -1093,14 +1087,10 @@ fn check_translations_fixed(scene: &Scene, layout: &ShellLayout, fixed: &[bool])
     if free.is_empty() {
         return Ok(());
     }
-    Err(Error::Scene {
-        file: scene.source.clone(),
-        field: "shell.clamped".into(),
-        reason: format!(
+    Err(scene.error("shell.clamped", format!(
             "the boundary conditions fix no dof of {}: the shell can move rigidly along those directions (a floating shell has no unique equilibrium); clamp a part (shell.clamped) or give [[shell.boundary]] conditions that hold each direction somewhere",
             free.join(", ")
-        ),
-    })
+        )))
 }
 
 /// The chart must be regular (|a1×a2| > 0) at every vertex and quadrature
@@ -1115,18 +1105,17 @@ fn check_chart_regular(mesh: &Mesh, scene: &Scene, chart: &Chart) -> Result<()> 
             let g = TriangleGeometry::new(mesh, t);
             quad_points(&g, t, &rule).map(|q| q.x).collect::<Vec<_>>()
         }));
-    chart
-        .check_regular(points)
-        .map_err(|(x, sqrt_a)| Error::Scene {
-            file: scene.source.clone(),
-            field: "shell.chart".into(),
-            reason: format!(
+    chart.check_regular(points).map_err(|(x, sqrt_a)| {
+        scene.error(
+            "shell.chart",
+            format!(
                 "the {} chart is singular on the mesh at ({:.6}, {:.6}): |a1×a2| = {sqrt_a:e}",
                 chart.kind(),
                 x[0],
                 x[1]
             ),
-        })
+        )
+    })
 }
 
 /// The shell's constraint w = (u − ε/2 r)·e3 against Φ_h (thesis Fig. 5.6):
