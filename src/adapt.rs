@@ -36,9 +36,39 @@ pub struct StepRow {
     /// Wall time since the loop started, at the end of this step's estimate
     /// (meshing, transfer, assembly, solve, estimate of all steps so far).
     pub seconds: f64,
+    /// The step's values of [`STEP_QUANTITIES`] it has (the shell's u3 min,
+    /// contact area, ∫λ, strain energy): what converges under refinement
+    /// when no exact solution is known.
+    pub quantities: Vec<(&'static str, f64)>,
 }
 
+/// Root attributes tabulated per step when every step has them, with their
+/// column titles.
+pub const STEP_QUANTITIES: [(&str, &str); 4] = [
+    ("u3_min", "u3 min"),
+    ("contact_area", "contact area"),
+    ("contact_force", "∫λ"),
+    ("strain_energy", "strain energy"),
+];
+
 impl StepRow {
+    /// The row of one step's result: its root attributes (as written, or
+    /// read back) and its triangle count.
+    pub fn of_step(attrs: &[(String, AttrValue)], n_triangles: usize) -> StepRow {
+        let attr = |n: &str| numeric_attr(attrs, n);
+        StepRow {
+            n_dofs: attr("n_dofs").unwrap_or(0.0) as usize,
+            n_triangles,
+            estimator: attr("estimator").unwrap_or(f64::NAN),
+            error_h1: attr("error_h1_u"),
+            seconds: attr("adapt_seconds").unwrap_or(f64::NAN),
+            quantities: STEP_QUANTITIES
+                .iter()
+                .filter_map(|&(name, _)| attr(name).map(|v| (name, v)))
+                .collect(),
+        }
+    }
+
     /// η / ‖∇(u − u_h)‖.
     pub fn effectivity(&self) -> Option<f64> {
         self.error_h1.map(|e| self.estimator / e)
@@ -194,13 +224,7 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
                 AttrValue::F64(mesh_seconds),
             ),
         ]);
-        rows.push(StepRow {
-            n_dofs: system.n_dofs(),
-            n_triangles: mesh.n_triangles(),
-            estimator,
-            error_h1: errors.map(|e| e.h1),
-            seconds,
-        });
+        rows.push(StepRow::of_step(&data.root_attrs, mesh.n_triangles()));
         // Stop, or remesh where the estimator is large.
         let mut stop = stop_reason(spec, k, estimator, None);
         let next = match stop {
@@ -256,14 +280,26 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
     }
 }
 
-/// The steps as a markdown table (dofs, triangles, η, error, effectivity, seconds).
+/// The steps as a markdown table (dofs, triangles, η, error, effectivity,
+/// seconds, then each of [`STEP_QUANTITIES`] that every step has, to six
+/// digits: the change between steps is the measure of convergence).
 pub fn steps_table(rows: &[StepRow]) -> String {
-    let mut s = String::from(
-        "| step | dofs | triangles | estimator η | H¹ error | η / error | seconds |\n|---:|---:|---:|---:|---:|---:|---:|\n",
-    );
+    let value = |r: &StepRow, name: &str| r.quantities.iter().find(|q| q.0 == name).map(|q| q.1);
+    let shown: Vec<(&str, &str)> = STEP_QUANTITIES
+        .into_iter()
+        .filter(|(name, _)| !rows.is_empty() && rows.iter().all(|r| value(r, name).is_some()))
+        .collect();
+    let mut s =
+        String::from("| step | dofs | triangles | estimator η | H¹ error | η / error | seconds |");
+    for (_, title) in &shown {
+        let _ = write!(s, " {title} |");
+    }
+    s.push_str("\n|---:|---:|---:|---:|---:|---:|---:|");
+    s.push_str(&"---:|".repeat(shown.len()));
+    s.push('\n');
     for (k, r) in rows.iter().enumerate() {
         let opt = |v: Option<f64>, p: usize| v.map_or("–".to_string(), |v| format!("{v:.p$e}"));
-        let _ = writeln!(
+        let _ = write!(
             s,
             "| {k} | {} | {} | {:.3e} | {} | {} | {:.2} |",
             r.n_dofs,
@@ -273,6 +309,11 @@ pub fn steps_table(rows: &[StepRow]) -> String {
             r.effectivity().map_or("–".into(), |e| format!("{e:.2}")),
             r.seconds
         );
+        for (name, _) in &shown {
+            let v = value(r, name).expect("shown: every step has it");
+            let _ = write!(s, " {} |", crate::numbers::meaningful(v, 6));
+        }
+        s.push('\n');
     }
     s
 }
@@ -281,16 +322,7 @@ pub fn steps_table(rows: &[StepRow]) -> String {
 pub fn rows_of(steps: &[crate::output::ResultFile]) -> Vec<StepRow> {
     steps
         .iter()
-        .map(|f| {
-            let attr = |n: &str| crate::output::numeric_attr(&f.data.root_attrs, n);
-            StepRow {
-                n_dofs: attr("n_dofs").unwrap_or(0.0) as usize,
-                n_triangles: f.triangles.len(),
-                estimator: attr("estimator").unwrap_or(f64::NAN),
-                error_h1: attr("error_h1_u"),
-                seconds: attr("adapt_seconds").unwrap_or(f64::NAN),
-            }
-        })
+        .map(|f| StepRow::of_step(&f.data.root_attrs, f.triangles.len()))
         .collect()
 }
 
