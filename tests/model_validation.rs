@@ -1,8 +1,8 @@
 //! Problems a model refuses at setup, before assembling or solving, with an
 //! error naming the scene key (issue 16): no Dirichlet part, an obstacle
 //! above the boundary values, a floating shell, errors against an exact
-//! solution that does not apply. Each used to reach the solver and fail
-//! there with a message about a factorisation, or to report nonsense.
+//! solution that does not apply. Unchecked, each would reach the solver and
+//! fail there with a message about a factorisation, or report nonsense.
 
 mod common;
 use common::{manifest_path, solve_scene, text};

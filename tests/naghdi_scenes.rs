@@ -319,9 +319,10 @@ fn bad_shell_input() {
 /// The active-set starts on 32×32, same solution, measured Newton solves:
 /// plain PDAS from the free solution 27; nested iteration (the 16×16
 /// solution as start) 18; depth bisection 10; the interior-point start (the
-/// shell's default, "auto") 13 — it wins from n = 128 on (15 against 20;
-/// 17 against 38 at n = 256: docs/work-precision.md), which no test size
-/// shows; here its count is bounded and `/solver/cold_start` names it.
+/// shell's default, "auto") 13 — it wins from n = 128 on (14 against 20;
+/// 16 against 38 at n = 256: docs/work-precision.md, "The interior-point
+/// start"), which no test size shows; here its count is bounded and
+/// `/solver/cold_start` names it.
 #[test]
 fn active_set_starts_reach_the_same_solution_in_fewer_steps() {
     let dir = tempfile::tempdir().unwrap();

@@ -297,8 +297,8 @@ proptest! {
     #![proptest_config(config())]
 
     // Case 62 of the fixed seed (a flipped bit in the size of a global heap
-    // object, where variable-length strings live) crashed or hung libhdf5;
-    // `read_result` now walks the heap before HDF5 reads it.
+    // object, where variable-length strings live) crashes or hangs libhdf5
+    // if HDF5 reads it unchecked; `read_result` walks the heap first.
     #[test]
     fn corrupted_result_file_is_read_or_refused(m in mutation(&["\0", "HDF", "\u{ff}\u{ff}"])) {
         static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
