@@ -11,7 +11,9 @@
 # the Markdown). Writes OUT_DIR/table.csv (code,vertices,wall_seconds,max_error,
 # iterations,peak_rss_mb) and OUT_DIR/table.md (both codes per size, ratio ours/PETSc).
 # A run that fails (our memory guard refusing a size, say) is a row with empty error and
-# iterations, its reason in the Markdown, and the next size runs.
+# iterations, its reason in the Markdown, and the next size runs. Our memory guard's limit
+# is MEMORY_LIMIT_GB (default 0.9 × MemTotal; the guard's own default, half of MemAvailable,
+# refuses 1025², whose estimate is ~3.6× its measured peak).
 set -uo pipefail
 [ $# -ge 4 ] || { echo "usage: $0 BIN PETSC_BALL OUT_DIR N..." >&2; exit 2; }
 bin=$1 ball=$2 out=$3
@@ -21,6 +23,7 @@ mkdir -p "$out"
 csv=$out/table.csv md=$out/table.md notes=$out/notes.txt
 echo "code,vertices,wall_seconds,max_error,iterations,peak_rss_mb" > "$csv"
 : > "$notes"
+memory_gb=${MEMORY_LIMIT_GB:-$(awk '$1 == "MemTotal:" { printf "%.1f", 0.9 * $2 / 1048576 }' /proc/meminfo)}
 load_start=$(cut -d' ' -f1-3 /proc/loadavg)
 
 # `/usr/bin/time -f "%e %M"` output (its last line) → "wall_seconds peak_rss_mb".
@@ -75,7 +78,7 @@ for n in "$@"; do
     base=$out/obstacle-$n
     echo "peers-bench: obstacle, $n × $n (mesh.n = $(( n - 1 )), nested)" >&2
     if /usr/bin/time -f "%e %M" -o "$base.time" "$bin" solve "$scene" --set mesh.n=$(( n - 1 )) \
-            --set solver.method=active-set --set solver.nested=true --set 'output.plots=[]' \
+            --set solver.method=active-set --set solver.nested=true --set mesh.memory_limit_gb="$memory_gb" --set 'output.plots=[]' \
             --quiet --out "$base.h5" > "$base.log" 2>&1 && error=$(max_error "$base.h5"); then
         read -r wall rss <<< "$(timing "$base.time")"
         its=$("$bin" info "$base.h5" | awk -F' = ' '$1 == "  iterations" { print $2; exit }')
@@ -88,7 +91,7 @@ for n in "$@"; do
 done
 
 # The Markdown: one row per size, both codes and the ratio ours/PETSc.
-awk -F, -v notes="$notes" -v load="load average $load_start at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end ($(nproc) cores)" '
+awk -F, -v notes="$notes" -v memgb="$memory_gb" -v load="load average $load_start at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end ($(nproc) cores)" '
     BEGIN { while ((getline line < notes) > 0) { split(line, w, " "); note[w[1] "," w[2]] = substr(line, length(w[1] w[2]) + 3) } }
     NR == 1 { next }
     { v = $2; if (!(v in seen)) { seen[v] = 1; order[n++] = v }
@@ -98,7 +101,7 @@ awk -F, -v notes="$notes" -v load="load average $load_start at the start, $(cut 
     END {
         print "# Ball obstacle: PETSc SNESVI (mg, grid sequencing) and obstacle (active set, nested)"
         print ""
-        print "Whole-process wall time (s), max |u − u_exact| over the vertices, Newton iterations on the finest level, peak RSS (MB); ratio = ours / PETSc; " load "."
+        print "Whole-process wall time (s), max |u − u_exact| over the vertices, Newton iterations on the finest level, peak RSS (MB); ratio = ours / PETSc; " load "; our memory guard'"'"'s limit " memgb " GB."
         print ""
         print "| vertices | PETSc wall | ours wall | ratio | PETSc max error | ours max error | ratio | PETSc its | ours its | PETSc RSS | ours RSS | ratio |"
         print "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
