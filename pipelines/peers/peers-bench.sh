@@ -20,14 +20,15 @@ bin=$1 ball=$2 out=$3
 shift 3
 scene=pipelines/scenes/peers/ball.toml
 mkdir -p "$out"
-csv=$out/table.csv md=$out/table.md notes=$out/notes.txt
+csv=$out/table.csv md=$out/table.md notes=$out/notes.txt cpu=$out/cpu.csv
 echo "code,vertices,wall_seconds,max_error,iterations,peak_rss_mb" > "$csv"
 : > "$notes"
+: > "$cpu"
 memory_gb=${MEMORY_LIMIT_GB:-$(awk '$1 == "MemTotal:" { printf "%.1f", 0.9 * $2 / 1048576 }' /proc/meminfo)}
 load_start=$(cut -d' ' -f1-3 /proc/loadavg)
 
-# `/usr/bin/time -f "%e %M"` output (its last line) → "wall_seconds peak_rss_mb".
-timing() { tail -n 1 "$1" | awk '{ printf "%.2f %.0f", $1, $2 / 1024 }'; }
+# `/usr/bin/time -f "%e %M %U %S"` output (its last line) → "wall_seconds peak_rss_mb cpu_seconds".
+timing() { tail -n 1 "$1" | awk '{ printf "%.2f %.0f %.2f", $1, $2 / 1024, $3 + $4 }'; }
 # A `key value` line of the PETSc driver's output → value(s).
 key() { awk -v k="$2" '$1 == k { $1 = ""; sub(/^ /, ""); print; exit }' "$1"; }
 # max |u − u_exact| over the vertices of a result: /mesh/vertices and /fields/u read with
@@ -62,14 +63,15 @@ for n in "$@"; do
     # PETSc: 5 × 5, K refinements with a solve on each grid.
     base=$out/petsc-$n
     echo "peers-bench: PETSc, $n × $n (5 × 5 grid, -snes_grid_sequence $k)" >&2
-    if /usr/bin/time -f "%e %M" -o "$base.time" "$ball" -da_grid_x 5 -da_grid_y 5 \
+    if /usr/bin/time -f "%e %M %U %S" -o "$base.time" "$ball" -da_grid_x 5 -da_grid_y 5 \
             -snes_grid_sequence $k -snes_type vinewtonrsls -pc_type mg > "$base.log" 2>&1 &&
         [ "$(key "$base.log" grid)" = "$n $n" ]; then
-        read -r wall rss <<< "$(timing "$base.time")"
+        read -r wall rss cpus <<< "$(timing "$base.time")"
+        echo "petsc,$vertices,$cpus" >> "$cpu"
         echo "petsc,$vertices,$wall,$(key "$base.log" max_error),$(key "$base.log" finest_iterations),$rss" >> "$csv"
         echo "petsc $n levels $(key "$base.log" level_iterations) total $(key "$base.log" iterations)" >> "$notes"
     else
-        read -r wall rss <<< "$(timing "$base.time")"
+        read -r wall rss cpus <<< "$(timing "$base.time")"
         echo "petsc,$vertices,$wall,,,$rss" >> "$csv"
         echo "petsc $n failed $(tail -n 1 "$base.log")" >> "$notes"
     fi
@@ -77,38 +79,41 @@ for n in "$@"; do
     # Ours: the same vertices (mesh.n = N − 1 cells per side), active set, nested start.
     base=$out/obstacle-$n
     echo "peers-bench: obstacle, $n × $n (mesh.n = $(( n - 1 )), nested)" >&2
-    if /usr/bin/time -f "%e %M" -o "$base.time" "$bin" solve "$scene" --set mesh.n=$(( n - 1 )) \
+    if /usr/bin/time -f "%e %M %U %S" -o "$base.time" "$bin" solve "$scene" --set mesh.n=$(( n - 1 )) \
             --set solver.method=active-set --set solver.nested=true --set mesh.memory_limit_gb="$memory_gb" --set 'output.plots=[]' \
             --quiet --out "$base.h5" > "$base.log" 2>&1 && error=$(max_error "$base.h5"); then
-        read -r wall rss <<< "$(timing "$base.time")"
+        read -r wall rss cpus <<< "$(timing "$base.time")"
         its=$("$bin" info "$base.h5" | awk -F' = ' '$1 == "  iterations" { print $2; exit }')
         echo "obstacle,$vertices,$wall,$error,$its,$rss" >> "$csv"
+        echo "obstacle,$vertices,$cpus" >> "$cpu"
     else
-        read -r wall rss <<< "$(timing "$base.time")"
+        read -r wall rss cpus <<< "$(timing "$base.time")"
         echo "obstacle,$vertices,$wall,,,$rss" >> "$csv"
         echo "obstacle $n failed $(grep -m 1 -i 'error' "$base.log" || tail -n 1 "$base.log")" >> "$notes"
     fi
 done
 
 # The Markdown: one row per size, both codes and the ratio ours/PETSc.
-awk -F, -v notes="$notes" -v memgb="$memory_gb" -v load="load average $load_start at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end ($(nproc) cores)" '
-    BEGIN { while ((getline line < notes) > 0) { split(line, w, " "); note[w[1] "," w[2]] = substr(line, length(w[1] w[2]) + 3) } }
+awk -F, -v notes="$notes" -v cpufile="$cpu" -v memgb="$memory_gb" -v load="load average $load_start at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end ($(nproc) cores)" '
+    BEGIN { while ((getline line < notes) > 0) { split(line, w, " "); note[w[1] "," w[2]] = substr(line, length(w[1] w[2]) + 3) }
+            while ((getline line < cpufile) > 0) { split(line, w, ","); cpu[w[1], w[2]] = w[3] } }
     NR == 1 { next }
     { v = $2; if (!(v in seen)) { seen[v] = 1; order[n++] = v }
       for (i = 3; i <= 6; i++) val[$1, v, i] = $i }
     function ratio(v, i) { return val["obstacle", v, i] != "" && val["petsc", v, i] > 0 ? sprintf("%.2f×", val["obstacle", v, i] / val["petsc", v, i]) : "–" }
     function cell(code, v, i) { return val[code, v, i] != "" ? val[code, v, i] : "–" }
+    function wall(code, v) { return cell(code, v, 3) ((code, v) in cpu ? " (" cpu[code, v] ")" : "") }
     END {
         print "# Ball obstacle: PETSc SNESVI (mg, grid sequencing) and obstacle (active set, nested)"
         print ""
-        print "Whole-process wall time (s), max |u − u_exact| over the vertices, Newton iterations on the finest level, peak RSS (MB); ratio = ours / PETSc; " load "; our memory guard'"'"'s limit " memgb " GB."
+        print "Whole-process wall time (s; in parentheses its CPU time, user + system), max |u − u_exact| over the vertices, Newton iterations on the finest level, peak RSS (MB); ratio = ours / PETSc; " load "; our memory guard'"'"'s limit " memgb " GB."
         print ""
-        print "| vertices | PETSc wall | ours wall | ratio | PETSc max error | ours max error | ratio | PETSc its | ours its | PETSc RSS | ours RSS | ratio |"
+        print "| vertices | PETSc wall (CPU) | ours wall (CPU) | ratio | PETSc max error | ours max error | ratio | PETSc its | ours its | PETSc RSS | ours RSS | ratio |"
         print "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
         for (j = 0; j < n; j++) {
             v = order[j]; side = sqrt(v)
             printf "| %d (%d²) | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", v, side,
-                cell("petsc", v, 3), cell("obstacle", v, 3), ratio(v, 3), cell("petsc", v, 4), cell("obstacle", v, 4), ratio(v, 4),
+                wall("petsc", v), wall("obstacle", v), ratio(v, 3), cell("petsc", v, 4), cell("obstacle", v, 4), ratio(v, 4),
                 cell("petsc", v, 5), cell("obstacle", v, 5), cell("petsc", v, 6), cell("obstacle", v, 6), ratio(v, 6)
         }
         print ""
