@@ -100,8 +100,10 @@ awk -F, -v notes="$notes" -v cpufile="$cpu" -v memgb="$memory_gb" -v load="load 
     NR == 1 { next }
     { v = $2; if (!(v in seen)) { seen[v] = 1; order[n++] = v }
       for (i = 3; i <= 6; i++) val[$1, v, i] = $i }
-    function ratio(v, i) { return val["obstacle", v, i] != "" && val["petsc", v, i] > 0 ? sprintf("%.2f×", val["obstacle", v, i] / val["petsc", v, i]) : "–" }
-    function cell(code, v, i) { return val[code, v, i] != "" ? val[code, v, i] : "–" }
+    # A run without an error failed: its wall time and RSS are no measure, no ratio.
+    function ok(code, v) { return val[code, v, 4] != "" }
+    function ratio(v, i) { return ok("obstacle", v) && ok("petsc", v) && val["petsc", v, i] > 0 ? sprintf("%.2f×", val["obstacle", v, i] / val["petsc", v, i]) : "–" }
+    function cell(code, v, i) { return !ok(code, v) ? (i == 3 ? "failed" : "–") : val[code, v, i] }
     function wall(code, v) { return cell(code, v, 3) ((code, v) in cpu ? " (" cpu[code, v] ")" : "") }
     END {
         print "# Ball obstacle: PETSc SNESVI (mg, grid sequencing) and obstacle (active set, nested)"
