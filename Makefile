@@ -309,3 +309,22 @@ peers: build
 	  tail -n +2 $(PEERS)/peers.csv | sed 's/,/ | /g; s/^/| /; s/$$/ |/'; echo; \
 	  cat $(PEERS)/peers-ball.md; } > $(PEERS)/peers.md
 	@cat $(PEERS)/peers.md
+
+# Issue 45: Bueler's ball obstacle beside PETSc's SNESVI (reduced-space active set,
+# multigrid, grid sequencing; pipelines/peers/petsc/ball.c, built against Debian's
+# petsc-dev, not installed by `make deps`) on N × N vertices for each N of SIZES
+# (N − 1 = 4 · 2^K): wall time, peak RSS, max error, iterations of both codes →
+# build/peers-bench/table.csv and table.md (pipelines/peers/peers-bench.sh).
+.PHONY: peers-bench petsc-check
+SIZES ?= 257 513 1025 2049
+PEERS_BENCH := $(BUILD)/peers-bench
+# PETSc's C compiler (`PCC` of its petscvariables: Debian's is mpicc).
+PETSC_CC ?= mpicc
+petsc-check:
+	@pkg-config --exists PETSc 2>/dev/null || { echo "make peers-bench: PETSc not found (pkg-config PETSc); install Debian's petsc-dev: apt-get install petsc-dev" >&2; exit 1; }
+	@command -v $(PETSC_CC) > /dev/null || { echo "make peers-bench: $(PETSC_CC), PETSc's C compiler, not found (PETSC_CC=...)" >&2; exit 1; }
+$(PEERS_BENCH)/ball: pipelines/peers/petsc/ball.c | petsc-check
+	@mkdir -p $(@D)
+	$(PETSC_CC) -O2 -Wall $$(pkg-config --cflags PETSc) $< -o $@ $$(pkg-config --libs PETSc) -lm
+peers-bench: petsc-check build $(PEERS_BENCH)/ball
+	bash pipelines/peers/peers-bench.sh $(BIN) $(PEERS_BENCH)/ball $(PEERS_BENCH) $(SIZES)
