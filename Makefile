@@ -262,7 +262,7 @@ shell-thin-adapt: build
 	@mkdir -p $(THIN_ADAPT)
 	$(BIN) solve pipelines/scenes/shell/hypar-mitc-adapt.toml --set shell.thickness=0.08 --set 'load.f=[0.0,0.0,-0.025]' --set adapt.max_dofs=700000 --quiet --out $(THIN_ADAPT)/hypar-mitc-adapt-0.08.h5
 	$(BIN) solve pipelines/scenes/shell/hypar-mitc-adapt.toml --quiet --out $(THIN_ADAPT)/hypar-mitc-adapt-0.008.h5
-	$(BIN) solve pipelines/scenes/shell/hypar-mitc-adapt.toml --set shell.thickness=0.0008 --set 'load.f=[0.0,0.0,-0.00025]' --set adapt.max_dofs=2500000 --quiet --out $(THIN_ADAPT)/hypar-mitc-adapt-0.0008.h5
+	$(BIN) solve pipelines/scenes/shell/hypar-mitc-adapt.toml --set shell.thickness=0.0008 --set 'load.f=[0.0,0.0,-0.00025]' --set adapt.max_dofs=2500000 --set solver.tol=1e-8 --quiet --out $(THIN_ADAPT)/hypar-mitc-adapt-0.0008.h5
 	for e in 0.08 0.008 0.0008; do $(BIN) info $(THIN_ADAPT)/hypar-mitc-adapt-$$e.h5 | sed -n '/^adaptive steps/,$$p' > $(THIN_ADAPT)/hypar-mitc-adapt-$$e.md; echo "ε = $$e"; cat $(THIN_ADAPT)/hypar-mitc-adapt-$$e.md; done
 
 # The hard cases with the locking-free elements (every case's element set to
