@@ -706,20 +706,6 @@ pub enum ColdStartSpec {
 }
 
 impl ColdStartSpec {
-    /// "auto" made concrete for a model: the start with fewer Newton
-    /// solves measured on its scenes (docs/work-precision.md, "The
-    /// interior-point start"): the shell's grow with n under the depth
-    /// bisection (7 … 61 at n = 16 … 512) and not under the interior point
-    /// (8 … 17); the membrane disk takes 3–7 with the bisection, 11–12 from
-    /// the interior point.
-    pub fn for_model(self, model: Model) -> ColdStartSpec {
-        match (self, model) {
-            (ColdStartSpec::Auto, Model::Naghdi) => ColdStartSpec::InteriorPoint,
-            (ColdStartSpec::Auto, Model::Membrane) => ColdStartSpec::DepthBisection,
-            (spec, _) => spec,
-        }
-    }
-
     pub fn name(self) -> &'static str {
         match self {
             ColdStartSpec::Auto => "auto",
