@@ -113,8 +113,8 @@ fn solvers_know_no_meshes_scenes_models_or_files() {
 #[test]
 fn the_scene_declares_and_imports_no_model() {
     assert_none(
-        "scene.rs imports only error, names, expression and the solver vocabulary",
-        only_imports("scene.rs", &["error", "names", "expression", "solvers"]),
+        "scene/ imports only error, names, expression and the solver vocabulary",
+        only_imports("scene/", &["error", "names", "expression", "solvers"]),
     );
 }
 
