@@ -27,12 +27,12 @@ use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use crate::models::naghdi::forms::{psri_weight, FieldRole, ShellElementKind, ShellLayout};
 use crate::models::naghdi::geometry::Chart;
-use crate::models::named_boundary_tags;
+use crate::models::{self, named_boundary_tags, FreefemTwin};
 use crate::output::{write_result, AttrValue, OutputTransaction, ResultData};
 use crate::pipeline::scene_mesh;
 use crate::scene::{
-    Alpha, BoundaryCondition, ContactMultiplier, ElementPair, Expression, Model, ObstacleShape,
-    Scene, ShellSpec, StepForm, StopRule,
+    Alpha, BoundaryCondition, ContactMultiplier, ElementPair, Expression, ObstacleShape, Scene,
+    ShellSpec, StepForm, StopRule,
 };
 use crate::solvers::uzawa::uzawa_alpha_of;
 use crate::solvers::{ContactProblem, SolveReport};
@@ -60,22 +60,26 @@ pub fn script_dir() -> PathBuf {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("freefem"))
 }
 
-/// The script of a model (the shell: its thesis element `p1b-p0`).
-pub fn script_for(model: Model) -> PathBuf {
-    script_dir().join(match model {
-        Model::Membrane => "membrane-obstacle.edp",
-        Model::Naghdi => "naghdi-contact.edp",
-    })
+/// The FreeFEM twin of a scene's model and element
+/// ([`ModelKind::freefem_twin`](crate::models::ModelKind::freefem_twin)).
+fn twin_of(scene: &Scene) -> Result<FreefemTwin> {
+    models::kind(scene.model)
+        .freefem_twin(scene.element)
+        .ok_or_else(|| {
+            scene.error(
+                "model",
+                format!("the model \"{}\" has no FreeFEM twin", scene.model.name()),
+            )
+        })
 }
 
-/// The script of a scene: [`script_for`] its model, or `naghdi-psri.edp` for
-/// the shell's PSRI element.
-pub fn script_for_scene(scene: &Scene) -> PathBuf {
-    if scene.model == Model::Naghdi && scene.element == ElementPair::P2bPsri {
-        script_dir().join(PSRI_SCRIPT)
-    } else {
-        script_for(scene.model)
-    }
+/// The script of a scene: its twin's file in [`script_dir`].
+pub fn script_for_scene(scene: &Scene) -> Result<PathBuf> {
+    Ok(script_dir().join(match twin_of(scene)? {
+        FreefemTwin::Membrane => "membrane-obstacle.edp",
+        FreefemTwin::ShellThesis => "naghdi-contact.edp",
+        FreefemTwin::ShellPsri => PSRI_SCRIPT,
+    }))
 }
 
 /// The FreeFEM twin of the shell's PSRI element.
@@ -340,8 +344,8 @@ pub fn script_args(
             "the FreeFEM script clamps the whole boundary: remove the key to compare",
         ));
     }
-    match scene.model {
-        Model::Membrane => {
+    match twin_of(scene)? {
+        FreefemTwin::Membrane => {
             let Some(obstacle) = &scene.obstacle else {
                 return Err(
                     scene.error("obstacle", "the FreeFEM membrane script needs an obstacle")
@@ -374,10 +378,10 @@ pub fn script_args(
                 f(obstacle.curvature.unwrap_or(0.0)),
             ]);
         }
-        Model::Naghdi if scene.element == ElementPair::P2bPsri => {
+        FreefemTwin::ShellPsri => {
             a.extend(psri_args(scene, mesh)?);
         }
-        Model::Naghdi => {
+        FreefemTwin::ShellThesis => {
             let shell = scene.shell.as_ref().expect("validated: naghdi has [shell]");
             let Chart::HyperbolicParaboloid { r, offset } = shell.chart else {
                 return Err(scene.error(
@@ -530,7 +534,9 @@ fn scene_functions(scene: &Scene) -> Option<String> {
     let g = scene.load.as_ref().and_then(|l| l.g.as_ref());
     let obstacle = scene.obstacle.as_ref()?;
     let expression_load = g.is_some_and(|g| g.as_constant().is_none());
-    if scene.model != Model::Membrane || (obstacle.lower.is_none() && !expression_load) {
+    let membrane =
+        models::kind(scene.model).freefem_twin(scene.element) == Some(FreefemTwin::Membrane);
+    if !membrane || (obstacle.lower.is_none() && !expression_load) {
         return None;
     }
     let mut text = match g {
@@ -947,13 +953,13 @@ pub fn run_freefem_scene(
 ) -> Result<FreefemRun> {
     let folder = crate::pipeline::output_folder(out)?;
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
-    let script = script_for_scene(scene);
+    let script = script_for_scene(scene)?;
     let mut inputs = scene.input_files();
     inputs.push(script.clone());
     // The result, its XDMF and the mesh appear together or not at all.
     let outputs = OutputTransaction::new(folder, stem, &inputs)?;
     // A shell's result has its 3D surface and a parameter-domain XDMF.
-    let staged_out = outputs.stage_result(out, scene.model == Model::Naghdi)?;
+    let staged_out = outputs.stage_result(out, models::kind(scene.model).has_surface())?;
     let msh = match &scene.mesh.file {
         Some(f) => scene.resolve(f),
         None => outputs.stage(&out.with_extension("msh"))?,
@@ -1158,15 +1164,15 @@ impl TwinSolution {
     ) -> Result<TwinSolution> {
         let (nv, nt) = (mesh.n_vertices(), mesh.n_triangles());
         let ns = nv + nt;
-        let (dofs, n_lambda) = match (scene.model, scene.element) {
-            (Model::Membrane, ElementPair::P1bP0) => {
+        let (dofs, n_lambda) = match (twin_of(scene)?, scene.element) {
+            (FreefemTwin::Membrane, ElementPair::P1bP0) => {
                 (vec![("u".into(), read_len(&file("u.txt"), ns)?)], nt)
             }
-            (Model::Membrane, _) => {
+            (FreefemTwin::Membrane, _) => {
                 let nu = nv + mesh.n_edges();
                 (vec![("u".into(), read_len(&file("u.txt"), nu)?)], nv)
             }
-            (Model::Naghdi, ElementPair::P2bPsri) => {
+            (FreefemTwin::ShellPsri, _) => {
                 check_psri_layout(scene, mesh, info, file)?;
                 let spaces = PsriSpaces::of(mesh);
                 let np = Space::new(mesh, spaces.u).n_dofs();
@@ -1177,7 +1183,7 @@ impl TwinSolution {
                 ];
                 (dofs, nv)
             }
-            (Model::Naghdi, _) => {
+            (FreefemTwin::ShellThesis, _) => {
                 let mut full = read_len(&file("u.txt"), 6 * ns)?;
                 let r = full.split_off(3 * ns);
                 let dofs = vec![

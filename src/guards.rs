@@ -14,27 +14,9 @@
 
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
-use crate::scene::{ElementPair, Model, Scene};
+use crate::models;
+use crate::scene::Scene;
 use crate::solvers::ContactProblem;
-
-/// Bytes per unknown of a whole shell run (assembly, factorisation,
-/// iteration, output) with the whole matrix factorised (`solver.condense =
-/// false`; docs/work-precision.md, "Scale" and "Scale after condensation"):
-/// active set, p1b-p0, n = 128, 378,631 unknowns, 1796 MB (4.7 KB each);
-/// n = 256, 1,510,919, 7408 MB (4.9 KB).
-const SHELL_BYTES_PER_UNKNOWN: f64 = 5.0e3;
-
-/// The same, condensed (the default), since the symmetric matrices are
-/// stored and condensed by their lower triangle (docs/work-precision.md,
-/// "Lower-triangle storage"): n = 64, 95,111 unknowns, 265 MB (2.8 KB);
-/// n = 128, 1069 MB (2.8 KB); n = 256, 4778 MB (3.2 KB); n = 512, ≈ 6.03M,
-/// 20157 MB (3.3 KB). Before: 4.5–4.7 KB, and 5.5–5.7 KB before that.
-const SHELL_CONDENSED_BYTES_PER_UNKNOWN: f64 = 3.6e3;
-
-/// The membrane (one field, at most one bubble per triangle), condensed or
-/// not: the disk P1⊕B3–P0 at n = 512, 1,158,566 unknowns, active set
-/// 2606 MB (2.2 KB each).
-const MEMBRANE_BYTES_PER_UNKNOWN: f64 = 3.0e3;
 
 /// The part of `MemAvailable` a run may use by default.
 const MEMORY_FRACTION: f64 = 0.5;
@@ -47,27 +29,11 @@ pub struct Estimate {
     pub bytes: f64,
 }
 
-/// Unknowns per triangle, counting V ≈ T/2 vertices and E ≈ 3T/2 edges:
-/// primal fields plus the contact multipliers.
-fn unknowns_per_triangle(model: Model, element: ElementPair) -> f64 {
-    match (model, element) {
-        // P1⊕B3 (V + T) and P0 (T); P2 (V + E) and P1 (V).
-        (Model::Membrane, _) => 2.5,
-        // 7 P1⊕B3 blocks and P0.
-        (Model::Naghdi, ElementPair::P1bP0) => 11.5,
-        // 5 P2⊕B3 blocks (V + E + T each) and P1; and the P2–P1 fallback.
-        (Model::Naghdi, _) => 15.5,
-    }
-}
-
 /// The estimate for a mesh of `triangles` triangles.
 pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
-    let unknowns = triangles * unknowns_per_triangle(scene.model, scene.element);
-    let bytes_per_unknown = match scene.model {
-        Model::Membrane => MEMBRANE_BYTES_PER_UNKNOWN,
-        Model::Naghdi if scene.solver.condense => SHELL_CONDENSED_BYTES_PER_UNKNOWN,
-        Model::Naghdi => SHELL_BYTES_PER_UNKNOWN,
-    };
+    let model = models::kind(scene.model);
+    let unknowns = triangles * model.unknowns_per_triangle(scene.element);
+    let bytes_per_unknown = model.bytes_per_unknown(scene.solver.condense);
     Estimate {
         triangles,
         unknowns,
@@ -179,22 +145,6 @@ pub fn check_mesh_scale(mesh: &Mesh) -> Result<()> {
     Ok(())
 }
 
-/// The scene keys that feed each part of the assembled problem.
-fn keys_of_matrix(scene: &Scene) -> &'static str {
-    match scene.model {
-        Model::Membrane => "the mesh coordinates",
-        Model::Naghdi => {
-            "shell.young, shell.thickness, shell.rho, shell.chart and the mesh coordinates"
-        }
-    }
-}
-fn keys_of_load(scene: &Scene) -> &'static str {
-    match scene.model {
-        Model::Membrane => "load.g",
-        Model::Naghdi => "load.f, load.edge",
-    }
-}
-
 /// The assembled problem is finite, and every multiplier acts on at least
 /// one free unknown; otherwise an error naming the scene keys and the mesh.
 pub fn check_assembled(scene: &Scene, mesh: &Mesh, p: &ContactProblem) -> Result<()> {
@@ -206,24 +156,12 @@ pub fn check_assembled(scene: &Scene, mesh: &Mesh, p: &ContactProblem) -> Result
     };
     let first_bad = |v: &[f64]| v.iter().position(|x| !x.is_finite()).map(|k| (k, v[k]));
     if let Some((k, v)) = first_bad(p.matrix.val()) {
-        let field = match scene.model {
-            Model::Membrane => "mesh",
-            Model::Naghdi => "shell",
-        };
-        return Err(blame(
-            field,
-            "stiffness matrix",
-            keys_of_matrix(scene),
-            k,
-            v,
-        ));
+        let (field, keys) = models::kind(scene.model).matrix_inputs();
+        return Err(blame(field, "stiffness matrix", keys, k, v));
     }
     if let Some((k, v)) = first_bad(&p.rhs) {
-        let field = match scene.model {
-            Model::Membrane => "load.g",
-            Model::Naghdi => "load",
-        };
-        return Err(blame(field, "load vector", keys_of_load(scene), k, v));
+        let (field, keys) = models::kind(scene.model).load_inputs();
+        return Err(blame(field, "load vector", keys, k, v));
     }
     let Some(c) = &p.constraint else {
         return Ok(());
@@ -276,13 +214,9 @@ pub fn name_matrix_inputs(scene: &Scene, e: Error) -> Error {
             measure,
             reason,
         } if measure.starts_with("factorisation") || measure == "matrix entries" => {
-            let field = match scene.model {
-                Model::Membrane => "mesh",
-                Model::Naghdi => "shell",
-            };
+            let (field, keys) = models::kind(scene.model).matrix_inputs();
             scene.error(field, format!(
-                    "{stage}: {measure}: {reason}; the matrix is built from {}: check their magnitudes and ratios",
-                    keys_of_matrix(scene)
+                    "{stage}: {measure}: {reason}; the matrix is built from {keys}: check their magnitudes and ratios"
                 ))
         }
         e => e,

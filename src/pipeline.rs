@@ -6,9 +6,7 @@ use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::guards;
 use crate::mesh::Mesh;
-use crate::models::membrane::MembraneSystem;
-use crate::models::naghdi::system::NaghdiSystem;
-use crate::models::{ExactErrors, FigureData, ModelSystem};
+use crate::models::{self, ExactErrors, FigureData, ModelSystem};
 use crate::output::transaction::RemoveOnSignal;
 use crate::output::{
     numeric_attr, write_result, AttrValue, Field, Location, OutputTransaction, ResultData,
@@ -387,7 +385,7 @@ pub fn solver_options(
             show_progress,
             initial_x: start.as_ref().map(|s| s.x.clone()),
             initial_lambda: start.as_ref().map(|s| s.lambda.clone()),
-            cold_start: match solver.cold_start.for_model(model) {
+            cold_start: match models::cold_start(solver.cold_start, model) {
                 ColdStartSpec::DepthBisection | ColdStartSpec::Auto => ColdStart::DEPTH_BISECTION,
                 ColdStartSpec::InteriorPoint => ColdStart::INTERIOR_POINT,
                 ColdStartSpec::Plain => ColdStart::Plain,
@@ -577,10 +575,7 @@ pub fn assemble(scene: &Scene, mesh: &Mesh, system: &dyn ModelSystem) -> Result<
 
 /// The scene's model set up on the mesh.
 pub fn setup_model<'m>(scene: &Scene, mesh: &'m Mesh) -> Result<Box<dyn ModelSystem + 'm>> {
-    Ok(match scene.model {
-        Model::Membrane => Box::new(MembraneSystem::setup(mesh, scene)?),
-        Model::Naghdi => Box::new(NaghdiSystem::setup(mesh, scene)?),
-    })
+    models::kind(scene.model).setup(mesh, scene)
 }
 
 /// Nested iteration (`solver.nested`): the scene solved on the mesh with
@@ -657,7 +652,7 @@ pub fn stage_run_outputs(scene: &Scene, out: &Path) -> Result<(OutputTransaction
     let dir = output_folder(out)?;
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("result");
     let outputs = OutputTransaction::new(dir, stem, &scene.input_files())?;
-    let staged_out = outputs.stage_result(out, scene.model == Model::Naghdi)?;
+    let staged_out = outputs.stage_result(out, models::kind(scene.model).has_surface())?;
     for kind in &scene.output.plots {
         outputs.stage(&plot_path(scene, out, *kind))?;
     }
@@ -810,7 +805,7 @@ fn record_solver(data: &mut ResultData, scene: &Scene, report: &SolveReport) {
     if s.method == Method::ActiveSet {
         attrs.push((
             "cold_start".into(),
-            AttrValue::Str(s.cold_start.for_model(scene.model).name().into()),
+            AttrValue::Str(models::cold_start(s.cold_start, scene.model).name().into()),
         ));
     }
     if let Some(f) = s.step_form {

@@ -12,11 +12,70 @@ use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::plot;
-use crate::scene::{PlotKind, Scene};
+use crate::scene::{ColdStartSpec, ElementPair, Model, PlotKind, Scene};
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::Element;
 use std::path::Path;
+
+/// What the stages around a model know of it before and beside its
+/// [`ModelSystem`]: how it is set up, its size per triangle, the scene keys
+/// that build its matrix and load, its result's layout, its cold start and
+/// its FreeFEM twin. A model implements it once; [`kind`] is the one match
+/// on [`Model`].
+pub trait ModelKind {
+    /// The model set up on the mesh for the scene (its `setup`).
+    fn setup<'m>(&self, mesh: &'m Mesh, scene: &Scene) -> Result<Box<dyn ModelSystem + 'm>>;
+    /// Unknowns per triangle of `element`, counting V ≈ T/2 vertices and
+    /// E ≈ 3T/2 edges: primal fields plus the contact multipliers
+    /// (the memory guard's estimate).
+    fn unknowns_per_triangle(&self, element: ElementPair) -> f64;
+    /// Bytes per unknown of a whole run (assembly, factorisation, iteration,
+    /// output), `condensed` or not (`solver.condense`).
+    fn bytes_per_unknown(&self, condensed: bool) -> f64;
+    /// The scene key named for a non-finite or singular matrix, and the keys
+    /// (in prose) that build it.
+    fn matrix_inputs(&self) -> (&'static str, &'static str);
+    /// The scene key named for a non-finite load vector, and the keys that build it.
+    fn load_inputs(&self) -> (&'static str, &'static str);
+    /// The result has a 3D surface and a parameter-domain XDMF.
+    fn has_surface(&self) -> bool;
+    /// What `solver.cold_start = "auto"` means for the model: the start with
+    /// fewer Newton solves measured on its scenes (docs/work-precision.md,
+    /// "The interior-point start").
+    fn auto_cold_start(&self) -> ColdStartSpec;
+    /// The FreeFEM script that solves the model's scene with `element`
+    /// too (`obstacle freefem`); None: the model has no twin.
+    fn freefem_twin(&self, element: ElementPair) -> Option<FreefemTwin>;
+}
+
+/// The FreeFEM twins of the models (freefem/*.edp; src/freefem.rs runs them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FreefemTwin {
+    /// `membrane-obstacle.edp`: P1⊕B3–P0 and P2–P1.
+    Membrane,
+    /// `naghdi-contact.edp`: the shell's thesis element `p1b-p0`.
+    ShellThesis,
+    /// `naghdi-psri.edp`: the shell's element `p2b-psri`.
+    ShellPsri,
+}
+
+/// The model a scene names: the one match on [`Model`].
+pub fn kind(model: Model) -> &'static dyn ModelKind {
+    match model {
+        Model::Membrane => &membrane::Membrane,
+        Model::Naghdi => &naghdi::Naghdi,
+    }
+}
+
+/// The solver's cold start for a model: the scene's, with "auto" made
+/// concrete by [`ModelKind::auto_cold_start`].
+pub fn cold_start(spec: ColdStartSpec, model: Model) -> ColdStartSpec {
+    match spec {
+        ColdStartSpec::Auto => kind(model).auto_cold_start(),
+        spec => spec,
+    }
+}
 
 /// A model set up on a mesh for a scene: the steps of a run after meshing.
 /// `setup` (each model's constructor) reads the scene once and resolves
