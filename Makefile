@@ -174,7 +174,7 @@ threads-timings: build
 	  done; done; \
 	done
 
-# --- Issue 5: benchmarks and work–precision studies (src/bench.rs) ----------
+# --- Issue 5: benchmarks and work–precision studies (src/bench/) ----------
 #   make bench   time / iterations / peak memory of every method to KKT 1e-6 and
 #                1e-10 (shell n = 16…128, disk n = 8…64) against one linear
 #                solve; table, CSV and plots in build/bench/ (~15 min)
