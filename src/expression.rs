@@ -152,6 +152,9 @@ impl Binary {
             Binary::Sub => a - b,
             Binary::Mul => a * b,
             Binary::Div => a / b,
+            // x² as a product: correctly rounded, where libm's pow is within
+            // 0.52 ulp, and several times cheaper (r^2 is in most scenes).
+            Binary::Pow if b == 2.0 => a * a,
             Binary::Pow => a.powf(b),
             Binary::Lt => compare(a < b),
             Binary::Le => compare(a <= b),
@@ -345,14 +348,15 @@ impl Tree {
 
     /// Every node's value at (x, y), in `values` (one per node).
     fn eval_into(&self, x: f64, y: f64, values: &mut [f64]) -> f64 {
-        let r = x.hypot(y);
+        // r = hypot(x, y) only for an expression that reads it.
+        let mut r = None;
         for (i, node) in self.nodes.iter().enumerate() {
             let v = |j: u32| values[j as usize];
             values[i] = match *node {
                 Node::Number(c) => c,
                 Node::Variable(Variable::X) => x,
                 Node::Variable(Variable::Y) => y,
-                Node::Variable(Variable::R) => r,
+                Node::Variable(Variable::R) => *r.get_or_insert_with(|| x.hypot(y)),
                 Node::Neg(a) => -v(a),
                 Node::Unary(f, a) => f.apply(v(a)),
                 Node::Binary(op, a, b) => op.apply(v(a), v(b)),
