@@ -540,7 +540,7 @@ pub fn solve_on<'m>(
         Start::Carried(dofs) => warm_start(system.as_ref(), &problem, dofs)?,
     };
     let options = solver_options(&scene.solver, scene.model, warm, show_progress);
-    let report = crate::solvers::solve(&problem, &options, &system.probes())
+    let (problem, report) = crate::solvers::solve(problem, &options, &system.probes())
         .map_err(|e| guards::name_matrix_inputs(scene, e))?;
     phase_end("solve");
     Ok(Solved {
