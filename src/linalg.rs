@@ -29,13 +29,6 @@ pub use linear_solver::{
 };
 use tree_ldlt::TreeSchedule;
 
-thread_local! {
-    /// Threads of the supernodal LDLᵀ factorisations made on this thread,
-    /// set only for the span of a [`with_threads`] call; 1: faer's
-    /// sequential one.
-    static THREADS: std::cell::Cell<usize> = const { std::cell::Cell::new(1) };
-}
-
 /// Lets the process keep the memory it frees for its next allocations
 /// instead of returning it to the system (glibc's `mallopt`): every Newton
 /// step allocates and frees factors of the same sizes (hundreds of MB), and
@@ -67,35 +60,19 @@ pub fn keep_freed_memory() -> bool {
     }
 }
 
-/// Runs `work` with the supernodal LDLᵀ factorisations and the large
-/// kernels (products, equilibration, entry checks) it makes on this thread
-/// on `threads` threads (1 or 0: faer's sequential factorisation; 2 or
-/// more: two threads on the elimination tree, `tree_ldlt`, whose one-column
-/// solves use the same split), and restores the count it found after (an
-/// unwinding panic included). The count comes from the caller's
-/// [`LinearOptions`] (`solver.threads`); concurrent runs (tests, `study
-/// --jobs`) keep their own. Cholesky and LU are sequential: faer's own
-/// threads lost on this 2-core machine (docs/work-precision.md, "Two
-/// threads on the elimination tree").
-pub fn with_threads<R>(threads: usize, work: impl FnOnce() -> R) -> R {
-    /// Puts the count found back when dropped.
-    struct Restore(usize);
-    impl Drop for Restore {
-        fn drop(&mut self) {
-            THREADS.with(|t| t.set(self.0));
-        }
-    }
-    let _restore = Restore(THREADS.with(|t| t.replace(threads.max(1))));
-    work()
+/// The threads of the supernodal LDLᵀ factorisations and of the large
+/// kernels (products, equilibration, entry checks, pattern fingerprints):
+/// 1 (or 0) faer's sequential factorisation; 2 or more two threads on the
+/// elimination tree (`tree_ldlt`), whose one-column solves use the same
+/// split. Passed to each kernel by its caller, from [`LinearOptions`]
+/// (`solver.threads`). Cholesky and LU are sequential: faer's own threads
+/// lost on this 2-core machine (docs/work-precision.md, "Two threads on
+/// the elimination tree").
+fn two_threads(threads: usize) -> bool {
+    threads >= 2
 }
 
-/// Whether this thread's supernodal LDLᵀ factorisations run on two
-/// threads ([`with_threads`]).
-fn two_threads() -> bool {
-    THREADS.with(|t| t.get()) >= 2
-}
-
-/// faer's parallelism: sequential (see [`with_threads`]).
+/// faer's parallelism: sequential (see [`two_threads`]).
 fn parallelism() -> Par {
     Par::Seq
 }
@@ -135,12 +112,12 @@ impl Storage {
         }
     }
 
-    /// y = A x.
-    fn product(self, a: SparseColMatRef<'_, usize, f64>, x: &[f64]) -> Vec<f64> {
+    /// y = A x (a large lower triangle on `threads`).
+    fn product(self, a: SparseColMatRef<'_, usize, f64>, x: &[f64], threads: usize) -> Vec<f64> {
         let s = a.symbolic();
         match self {
             Storage::Whole => mat_vec_ref(a, x),
-            Storage::LowerTriangle => lower_product(s.col_ptr(), s.row_idx(), a.val(), x),
+            Storage::LowerTriangle => lower_product(s.col_ptr(), s.row_idx(), a.val(), x, threads),
         }
     }
 
@@ -162,8 +139,14 @@ impl Storage {
     }
 
     /// r = b − A x.
-    fn residual(self, a: SparseColMatRef<'_, usize, f64>, x: &[f64], b: &[f64]) -> Vec<f64> {
-        difference(b, &self.product(a, x))
+    fn residual(
+        self,
+        a: SparseColMatRef<'_, usize, f64>,
+        x: &[f64],
+        b: &[f64],
+        threads: usize,
+    ) -> Vec<f64> {
+        difference(b, &self.product(a, x, threads))
     }
 
     /// The matrix with both triangles (the lower triangle and its mirror),
@@ -216,6 +199,7 @@ fn lower_product<R: RowIndex + Sync>(
     rows: &[R],
     values: &[f64],
     x: &[f64],
+    threads: usize,
 ) -> Vec<f64> {
     let n = x.len();
     // y[columns.start..] of the columns `columns`.
@@ -238,7 +222,7 @@ fn lower_product<R: RowIndex + Sync>(
         }
         y
     };
-    in_column_halves(&col_ptr[..=n], part, |mut first, second| {
+    in_column_halves(&col_ptr[..=n], threads, part, |mut first, second| {
         let from = n - second.len();
         first[from..]
             .iter_mut()
@@ -319,6 +303,8 @@ pub struct CondensedFactorization {
     /// (ρ = 1e12 shell: residual 5e-8 unrefined).
     matrix: RefinementMatrix,
     scale: EntryScale,
+    /// The threads of its products and of the interior unknowns' recovery.
+    threads: usize,
 }
 
 /// The matrix a condensed factorisation refines its solves against.
@@ -368,10 +354,12 @@ impl RefinementMatrix {
     }
 
     /// A x.
-    fn product(&self, x: &[f64]) -> Vec<f64> {
+    fn product(&self, x: &[f64], threads: usize) -> Vec<f64> {
         match self {
-            RefinementMatrix::Shared(a, storage) => storage.product(a.as_ref().as_ref(), x),
-            RefinementMatrix::Symmetric(lower) => lower.product(x),
+            RefinementMatrix::Shared(a, storage) => {
+                storage.product(a.as_ref().as_ref(), x, threads)
+            }
+            RefinementMatrix::Symmetric(lower) => lower.product(x, threads),
             RefinementMatrix::General { pattern, values } => {
                 mat_vec_ref(SparseColMatRef::new((**pattern).as_ref(), values), x)
             }
@@ -421,8 +409,8 @@ impl SymmetricLower {
         }
     }
 
-    fn product(&self, x: &[f64]) -> Vec<f64> {
-        lower_product(&self.col_ptr, &self.rows, &self.values, x)
+    fn product(&self, x: &[f64], threads: usize) -> Vec<f64> {
+        lower_product(&self.col_ptr, &self.rows, &self.values, x, threads)
     }
 
     /// a_jj (0 where not stored).
@@ -447,7 +435,7 @@ impl CondensedFactorization {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         solve_refined(
             b,
-            |v| self.matrix.product(v),
+            |v| self.matrix.product(v, self.threads),
             |i| self.matrix.diagonal(i),
             &self.scale,
             |d| self.raw_solve(d, false),
@@ -459,13 +447,16 @@ impl CondensedFactorization {
     /// would only anticipate. The transposed solve is the exception (no
     /// caller refines it), so S's solve is refined there.
     fn raw_solve(&self, b: &mut [f64], transpose: bool) {
-        let mut x_r = self.plan.condense_rhs(&self.local, b, transpose);
+        let mut x_r = self
+            .plan
+            .condense_rhs(&self.local, b, transpose, self.threads);
         if transpose {
             self.schur.solve_transpose_in_place(&mut x_r);
         } else {
             self.schur.solve_unrefined_in_place(&mut x_r);
         }
-        self.plan.recover(&self.local, &x_r, b, transpose);
+        self.plan
+            .recover(&self.local, &x_r, b, transpose, self.threads);
     }
 
     /// Bᵀ A⁻¹ B = B_Iᵀ A_II⁻¹ B_I + B̃ᵀ S⁻¹ B̃ (B̃ = B_R − A_RI A_II⁻¹ B_I,
@@ -523,7 +514,7 @@ impl Factorization {
     }
 }
 
-/// Factorises `a` (symbolic analysis and numeric factorisation of
+/// Factorises `a` on one thread (symbolic analysis and numeric factorisation of
 /// [`ReusableFactorization`], used once) and checks the factorisation on one
 /// solve: a numerically singular matrix shows up as a non-finite or
 /// inaccurate solution even when the factorisation itself "succeeds".
@@ -545,8 +536,8 @@ pub fn factorize_checked_with(
     interior: Option<&InteriorGroups>,
     what: &str,
 ) -> Result<Factorization> {
-    let (f, _) =
-        ReusableFactorization::analyze_with(a, kind, solves, interior, what)?.factorize(a, what)?;
+    let (f, _) = ReusableFactorization::analyze_with(a, kind, solves, interior, what, 1)?
+        .factorize(a, what)?;
     Ok(f)
 }
 
@@ -570,8 +561,15 @@ impl SolveQuality {
         componentwise: Some(0.0),
     };
 
-    fn of(a: &SparseColMat<usize, f64>, storage: Storage, norm: f64, x: &[f64], b: &[f64]) -> Self {
-        Self::with_product(a, storage, norm, x, b, None)
+    fn of(
+        a: &SparseColMat<usize, f64>,
+        storage: Storage,
+        norm: f64,
+        x: &[f64],
+        b: &[f64],
+        threads: usize,
+    ) -> Self {
+        Self::with_product(a, storage, norm, x, b, None, threads)
     }
 
     /// [`SolveQuality::of`], from A x when the solve's refinement computed it
@@ -583,10 +581,11 @@ impl SolveQuality {
         x: &[f64],
         b: &[f64],
         ax: Option<&[f64]>,
+        threads: usize,
     ) -> Self {
         let r = match ax {
             Some(ax) => difference(b, ax),
-            None => storage.residual(a.as_ref(), x, b),
+            None => storage.residual(a.as_ref(), x, b, threads),
         };
         let size = norm_inf(&r);
         let relative = size / norm_inf(b);
@@ -637,6 +636,7 @@ fn check_solve(
     f: &Factorization,
     b: &[f64],
     what: &str,
+    threads: usize,
 ) -> Result<(Vec<f64>, SolveQuality)> {
     if b.is_empty() {
         // No unknowns (every dof fixed): x = () solves exactly. Without this
@@ -644,7 +644,7 @@ fn check_solve(
         return Ok((Vec::new(), SolveQuality::EXACT));
     }
     if norm_inf(b) == 0.0 {
-        let quality = check_solve(a, storage, norm, f, &test_rhs(a.nrows()), what)?.1;
+        let quality = check_solve(a, storage, norm, f, &test_rhs(a.nrows()), what, threads)?.1;
         return Ok((vec![0.0; b.len()], quality));
     }
     let mut x = b.to_vec();
@@ -657,7 +657,7 @@ fn check_solve(
             None
         }
     };
-    let quality = judge_solve(a, storage, norm, &x, b, ax.as_deref(), what)?;
+    let quality = judge_solve(a, storage, norm, &x, b, ax.as_deref(), what, threads)?;
     Ok((x, quality))
 }
 
@@ -676,6 +676,7 @@ fn judge_solve(
     b: &[f64],
     ax: Option<&[f64]>,
     what: &str,
+    threads: usize,
 ) -> Result<SolveQuality> {
     if x.iter().any(|v| !v.is_finite()) {
         return Err(Error::numerical(
@@ -684,7 +685,7 @@ fn judge_solve(
             "solve gives non-finite values: the matrix is singular",
         ));
     }
-    let quality = SolveQuality::with_product(a, storage, norm, x, b, ax);
+    let quality = SolveQuality::with_product(a, storage, norm, x, b, ax, threads);
     let (rel, componentwise) = (quality.relative, quality.componentwise);
     if rel > 1e-6 && !componentwise.is_some_and(|c| c <= COMPONENTWISE_ACCEPTED) {
         return Err(Error::numerical(
@@ -724,8 +725,8 @@ fn difference(b: &[f64], a: &[f64]) -> Vec<f64> {
 }
 
 /// `steps` steps of iterative refinement x ← x + A⁻¹(b − A x) of a solution
-/// x of A x = b (A of `kind`: a symmetric one may be its lower triangle);
-/// returns ‖b − A x‖∞/‖b‖∞ of the final x (‖·‖ for b = 0).
+/// x of A x = b (A of `kind`: a symmetric one may be its lower triangle;
+/// its products on `threads`); returns ‖b − A x‖∞/‖b‖∞ of the final x (‖·‖ for b = 0).
 pub fn refine(
     a: &SparseColMat<usize, f64>,
     kind: MatrixKind,
@@ -733,14 +734,15 @@ pub fn refine(
     b: &[f64],
     x: &mut [f64],
     steps: usize,
+    threads: usize,
 ) -> f64 {
     let storage = Storage::of(a.as_ref(), kind);
-    let mut r = storage.residual(a.as_ref(), x, b);
+    let mut r = storage.residual(a.as_ref(), x, b, threads);
     for _ in 0..steps {
         let mut d = r;
         f.solve_in_place(&mut d);
         x.iter_mut().zip(&d).for_each(|(xi, dx)| *xi += dx);
-        r = storage.residual(a.as_ref(), x, b);
+        r = storage.residual(a.as_ref(), x, b, threads);
     }
     let scale = norm_inf(b);
     if scale > 0.0 {
@@ -779,7 +781,7 @@ enum SymbolicAnalysis {
 /// What every numeric LDLᵀ of one pattern reads.
 struct LdltAnalysis {
     symbolic: Arc<SymbolicCholesky<usize>>,
-    /// The two threads' split of a supernodal analysis ([`with_threads`]).
+    /// The two threads' split of a supernodal analysis ([`two_threads`]).
     schedule: Option<Arc<TreeSchedule>>,
     /// Where the matrix's entries go in that order.
     ordered: OrderedPattern,
@@ -928,6 +930,8 @@ struct DirectFactorizer {
     /// differs from it only in declared diagonal entries; the declared
     /// positions when [`KeptScale::of`] refused them (not asked again).
     kept_scale: Option<std::result::Result<KeptScale, Vec<usize>>>,
+    /// The threads of its factorisations and kernels ([`two_threads`]).
+    threads: usize,
 }
 
 /// The factor values of a dropped LDLᵀ, reused by the next one of the same
@@ -1062,26 +1066,29 @@ impl FactorInputs {
 }
 
 impl ReusableFactorization {
-    /// The symbolic analysis of the pattern of `a` (values are not read).
+    /// The symbolic analysis of the pattern of `a` (values are not read),
+    /// for factorisations on one thread.
     pub fn analyze(
         a: &SparseColMat<usize, f64>,
         kind: MatrixKind,
         solves: Solves,
         what: &str,
     ) -> Result<Self> {
-        Self::analyze_with(a, kind, solves, None, what)
+        Self::analyze_with(a, kind, solves, None, what, 1)
     }
 
     /// [`ReusableFactorization::analyze`] with the `interior` groups
     /// condensed (checked against `a`'s pattern: a group coupling with
-    /// another group is an error naming it); no groups, or an empty list:
-    /// A itself is factorised.
+    /// another group is an error naming it; no groups, or an empty list:
+    /// A itself is factorised), for factorisations and kernels on
+    /// `threads` ([`two_threads`]).
     pub fn analyze_with(
         a: &SparseColMat<usize, f64>,
         kind: MatrixKind,
         solves: Solves,
         interior: Option<&InteriorGroups>,
         what: &str,
+        threads: usize,
     ) -> Result<Self> {
         if a.nrows() != a.ncols() {
             return Err(Error::numerical(
@@ -1092,19 +1099,20 @@ impl ReusableFactorization {
         }
         let (direct, condensation, schur) = match interior.filter(|g| !g.is_empty()) {
             None => (
-                DirectFactorizer::analyze(a, kind, solves, what)?,
+                DirectFactorizer::analyze(a, kind, solves, what, threads)?,
                 None,
                 None,
             ),
             Some(groups) => {
                 let (plan, schur) = CondensationPlan::new(a, groups, kind, what)?;
-                let mut direct = DirectFactorizer::analyze(&schur, plan.schur_kind, solves, what)?;
+                let mut direct =
+                    DirectFactorizer::analyze(&schur, plan.schur_kind, solves, what, threads)?;
                 direct.lu_last = false;
                 (direct, Some(Arc::new(plan)), Some(Arc::new(schur)))
             }
         };
         Ok(ReusableFactorization {
-            pattern: AnalysedPattern::of(a, kind),
+            pattern: AnalysedPattern::of(a, kind, threads),
             direct,
             condensation,
             schur,
@@ -1253,7 +1261,8 @@ impl ReusableFactorization {
             }
             _ => None,
         };
-        if declared_scale.is_none() && !self.pattern.matches(a) {
+        let threads = self.direct.threads;
+        if declared_scale.is_none() && !self.pattern.matches(a, threads) {
             return Err(Error::numerical(
                 what,
                 "sparsity pattern",
@@ -1272,7 +1281,7 @@ impl ReusableFactorization {
         let read_whole = declared_scale.is_none();
         let scale = match declared_scale {
             Some(scale) => scale?,
-            None => checked_scale(a, what)?,
+            None => checked_scale(a, what, threads)?,
         };
         let norm = scale.norm;
         let storage = self.storage;
@@ -1284,7 +1293,7 @@ impl ReusableFactorization {
                 kept.fixed_scale = FixedScale::of(a, scale, changing);
             }
         }
-        let b_s = plan.condense_rhs(&local, b, false);
+        let b_s = plan.condense_rhs(&local, b, false, threads);
         // Declared changes of A change S only where they land.
         let declared: Option<Vec<usize>> = match (changed, &self.kept) {
             (Changed::Declared, Some(kept)) => Some(kept.terms.iter().map(|t| t.1).collect()),
@@ -1307,15 +1316,16 @@ impl ReusableFactorization {
             ldlt.skip_refinement_if_exact();
         }
         let mut x = b.to_vec();
-        plan.recover(&local, &x_r, &mut x, false);
+        plan.recover(&local, &x_r, &mut x, false, threads);
         let condensed = CondensedFactorization {
             plan: plan.clone(),
             local,
             schur,
             matrix: RefinementMatrix::of(&matrix, storage, &self.pattern),
             scale,
+            threads,
         };
-        let product = |v: &[f64]| condensed.matrix.product(v);
+        let product = |v: &[f64]| condensed.matrix.product(v, threads);
         let diagonal = |i| condensed.matrix.diagonal(i);
         let refined_ax = refine_to_round_off(product, diagonal, &condensed.scale, &mut x, b, |d| {
             condensed.raw_solve(d, false)
@@ -1330,9 +1340,10 @@ impl ReusableFactorization {
         let judged_ax = shared.then_some(refined_ax);
         let f = Factorization::Condensed(Box::new(condensed));
         let checked = if norm_inf(b) == 0.0 {
-            check_solve(a, storage, norm, &f, b, what)
+            check_solve(a, storage, norm, &f, b, what, threads)
         } else {
-            judge_solve(a, storage, norm, &x, b, judged_ax.as_deref(), what).map(|q| (x, q))
+            judge_solve(a, storage, norm, &x, b, judged_ax.as_deref(), what, threads)
+                .map(|q| (x, q))
         };
         if let Ok((x, quality)) = checked {
             if quality.condensed_accepted(schur_relative) {
@@ -1358,7 +1369,8 @@ impl ReusableFactorization {
         self.condensation = None;
         self.schur = None;
         self.kept = None;
-        self.direct = DirectFactorizer::analyze(&matrix, self.kind, self.solves, what)?;
+        let threads = self.direct.threads;
+        self.direct = DirectFactorizer::analyze(&matrix, self.kind, self.solves, what, threads)?;
         self.direct.symbolic_analyses += analyses;
         self.direct.factorize_and_solve(matrix, b, what)
     }
@@ -1400,7 +1412,7 @@ impl ReusableFactorization {
 
 /// The scale of `a`'s entries ([`EntryScale`]), or an error naming its
 /// first entry that is not finite.
-fn checked_scale(a: &SparseColMat<usize, f64>, what: &str) -> Result<EntryScale> {
+fn checked_scale(a: &SparseColMat<usize, f64>, what: &str, threads: usize) -> Result<EntryScale> {
     // Eight lanes of compare-and-select (they vectorise; f64::max's NaN
     // rule does not): NaN fails both comparisons, ∞ the second.
     const LANES: usize = 8;
@@ -1445,7 +1457,7 @@ fn checked_scale(a: &SparseColMat<usize, f64>, what: &str) -> Result<EntryScale>
         (norm_inf(&off.0), norm_inf(&diagonal.0), finite)
     };
     let (off_diagonal, diagonal, finite) =
-        in_two_halves(a, of_columns, |(o1, d1, f1), (o2, d2, f2)| {
+        in_two_halves(a, threads, of_columns, |(o1, d1, f1), (o2, d2, f2)| {
             (o1.max(o2), d1.max(d2), f1 & f2)
         });
     match finite {
@@ -1535,10 +1547,13 @@ impl DirectFactorizer {
         kind: MatrixKind,
         solves: Solves,
         what: &str,
+        threads: usize,
     ) -> Result<Self> {
         let symbolic = match kind {
             MatrixKind::General => lu_analysis(a, what)?,
-            MatrixKind::SymmetricSaddle { n_primal } => ldlt_analysis(a, n_primal, solves, what)?,
+            MatrixKind::SymmetricSaddle { n_primal } => {
+                ldlt_analysis(a, n_primal, solves, what, threads)?
+            }
             MatrixKind::SymmetricPositiveDefinite => SymbolicAnalysis::Llt(
                 SymbolicLlt::try_new(a.symbolic(), Side::Lower)
                     .map_err(|e| Error::numerical(what, "Cholesky (symbolic)", format!("{e:?}")))?,
@@ -1555,6 +1570,7 @@ impl DirectFactorizer {
             lu_last: true,
             spare_factors: Arc::default(),
             kept_scale: None,
+            threads,
         })
     }
 
@@ -1612,14 +1628,14 @@ impl DirectFactorizer {
                 // κ ~ 1e12), so it is judged by the backward error
                 // ‖Ax − b‖/(‖A‖‖x‖ + ‖b‖). A matrix that is not positive
                 // definite after all goes on to LU, as below.
-                let solved = RegularizedLdlt::new(analysis, matrix.to_arc(), storage, scale, equilibration, kept, &self.spare_factors, what)
+                let solved = RegularizedLdlt::new(analysis, matrix.to_arc(), storage, scale, equilibration, kept, &self.spare_factors, what, self.threads)
                     .ok()
                     .map(|l| Factorization::Ldlt(Box::new(l)))
                     .and_then(|f| {
                         let rhs = if norm_inf(b) == 0.0 { test_rhs(a.nrows()) } else { b.to_vec() };
                         let mut x = rhs.clone();
                         f.solve_in_place(&mut x);
-                        let quality = SolveQuality::of(a, storage, norm, &x, &rhs);
+                        let quality = SolveQuality::of(a, storage, norm, &x, &rhs, self.threads);
                         (quality.backward <= BACKWARD_ACCEPTED).then(|| {
                             let x = if norm_inf(b) == 0.0 { vec![0.0; b.len()] } else { x };
                             (f, x, quality.relative)
@@ -1649,9 +1665,10 @@ impl DirectFactorizer {
                         kept,
                         &self.spare_factors,
                         what,
+                        self.threads,
                     );
                 let solved = ldlt.map(|l| Factorization::Ldlt(Box::new(l))).and_then(|f| {
-                    let (x, quality) = check_solve(a, storage, norm, &f, b, what)?;
+                    let (x, quality) = check_solve(a, storage, norm, &f, b, what, self.threads)?;
                     Ok((f, x, quality))
                 });
                 let why = match solved {
@@ -1676,7 +1693,7 @@ impl DirectFactorizer {
                 // n = 256): the order that regularises no pivot next, then LU
                 // (the signs are not the matrix's inertia).
                 let next = match order {
-                    Solves::Few => ldlt_analysis(a, n_primal, Solves::Many, what)?,
+                    Solves::Few => ldlt_analysis(a, n_primal, Solves::Many, what, self.threads)?,
                     Solves::Many => self.lu_fallback(a, &why, what)?,
                 };
                 return self.retry_with(next, why, matrix.clone(), b, what);
@@ -1694,7 +1711,7 @@ impl DirectFactorizer {
             ),
         };
         self.count(&f);
-        match check_solve(a, storage, norm, &f, b, what) {
+        match check_solve(a, storage, norm, &f, b, what, self.threads) {
             Ok((x, quality)) => Ok((f, x, quality.relative)),
             Err(e) if matches!(self.symbolic, SymbolicAnalysis::Llt(_)) => {
                 // An SPD matrix too ill-conditioned for a plain Cholesky solve
@@ -1705,7 +1722,7 @@ impl DirectFactorizer {
                 // round-off equilibrated and refined.
                 let n = a.nrows();
                 let why = format!("Cholesky: {e}");
-                let ldlt = ldlt_analysis(a, n, Solves::Few, what).map_err(|_| e)?;
+                let ldlt = ldlt_analysis(a, n, Solves::Few, what, self.threads).map_err(|_| e)?;
                 self.retry_with(ldlt, why, matrix.clone(), b, what)
             }
             Err(e) => Err(self.naming_fallbacks(e)),
@@ -1745,19 +1762,19 @@ impl DirectFactorizer {
         let ldlt = matches!(self.symbolic, SymbolicAnalysis::Ldlt { .. });
         let Some(declared) = declared.filter(|_| ldlt) else {
             self.kept_scale = None;
-            return Ok((checked_scale(a, what)?, None));
+            return Ok((checked_scale(a, what, self.threads)?, None));
         };
         match self.kept_scale.as_mut() {
             Some(Ok(kept)) if kept.positions == declared => {
                 return kept.with(a, what).map(|(s, e)| (s, Some(e)));
             }
             Some(Err(refused)) if refused.as_slice() == declared => {
-                return Ok((checked_scale(a, what)?, None));
+                return Ok((checked_scale(a, what, self.threads)?, None));
             }
             _ => {}
         }
-        let scale = checked_scale(a, what)?;
-        let Some(mut kept) = KeptScale::of(a, scale, declared) else {
+        let scale = checked_scale(a, what, self.threads)?;
+        let Some(mut kept) = KeptScale::of(a, scale, declared, self.threads) else {
             self.kept_scale = Some(Err(declared.to_vec()));
             return Ok((scale, None));
         };
@@ -1845,20 +1862,20 @@ enum AnalysedPattern {
 }
 
 impl AnalysedPattern {
-    fn of(a: &SparseColMat<usize, f64>, kind: MatrixKind) -> Self {
+    fn of(a: &SparseColMat<usize, f64>, kind: MatrixKind, threads: usize) -> Self {
         match kind {
             MatrixKind::General => AnalysedPattern::Kept(Arc::new(pattern_of(a))),
             _ => AnalysedPattern::Fingerprint {
                 nrows: a.nrows(),
                 ncols: a.ncols(),
-                hash: pattern_hash(a),
+                hash: pattern_hash(a, threads),
             },
         }
     }
 
     /// Whether `a` has the pattern (compared column by column when kept:
     /// no copy of `a`'s pattern, which is as large as A's values).
-    fn matches(&self, a: &SparseColMat<usize, f64>) -> bool {
+    fn matches(&self, a: &SparseColMat<usize, f64>, threads: usize) -> bool {
         match self {
             AnalysedPattern::Kept(pattern) => {
                 a.nrows() == pattern.nrows()
@@ -1868,7 +1885,7 @@ impl AnalysedPattern {
                     })
             }
             &AnalysedPattern::Fingerprint { nrows, ncols, hash } => {
-                a.nrows() == nrows && a.ncols() == ncols && pattern_hash(a) == hash
+                a.nrows() == nrows && a.ncols() == ncols && pattern_hash(a, threads) == hash
             }
         }
     }
@@ -1884,9 +1901,9 @@ impl AnalysedPattern {
 /// A 64-bit hash of `a`'s pattern: every column's length and the first
 /// half of the row indices (column by column), then the second half
 /// ([`PatternHasher`]); the halves hash on two threads when factorisations
-/// have two ([`with_threads`]) and the pattern is large: the hash is the
+/// have two ([`two_threads`]) and the pattern is large: the hash is the
 /// same either way.
-fn pattern_hash(a: &SparseColMat<usize, f64>) -> u64 {
+fn pattern_hash(a: &SparseColMat<usize, f64>, threads: usize) -> u64 {
     let s = a.symbolic();
     let mut first = PatternHasher::default();
     for j in 0..a.ncols() {
@@ -1905,7 +1922,7 @@ fn pattern_hash(a: &SparseColMat<usize, f64>) -> u64 {
         h.extend(tail);
         h.finish()
     };
-    let tail_hash = match two_threads() && rows.len() >= PARALLEL_ENTRIES {
+    let tail_hash = match two_threads(threads) && rows.len() >= PARALLEL_ENTRIES {
         true => std::thread::scope(|scope| {
             let tail_hash = scope.spawn(hash_tail);
             first.extend(head);
@@ -2055,9 +2072,9 @@ struct Equilibration {
 
 impl Equilibration {
     /// Of all of `a` ([`symmetric_equilibration`]).
-    fn of(a: &SparseColMat<usize, f64>) -> Self {
+    fn of(a: &SparseColMat<usize, f64>, threads: usize) -> Self {
         Equilibration {
-            d: symmetric_equilibration(a),
+            d: symmetric_equilibration(a, threads),
             norm: None,
         }
     }
@@ -2105,7 +2122,12 @@ impl KeptScale {
     /// Of `a` (`scale` its [`checked_scale`]) for changes at the `declared`
     /// positions; None when one is not on the diagonal or two declared
     /// rows share an entry.
-    fn of(a: &SparseColMat<usize, f64>, scale: EntryScale, declared: &[usize]) -> Option<Self> {
+    fn of(
+        a: &SparseColMat<usize, f64>,
+        scale: EntryScale,
+        declared: &[usize],
+        threads: usize,
+    ) -> Option<Self> {
         let fixed = FixedScale::of(a, scale, declared)?;
         let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
         let rows: Vec<usize> = declared.iter().map(|&k| row_idx[k]).collect();
@@ -2115,7 +2137,7 @@ impl KeptScale {
             .enumerate()
             .for_each(|(r, &i)| declared_as[i] = r);
         let is_declared = |i: usize| declared_as[i] != usize::MAX;
-        let d = ruiz_equilibration(a, |i, j| i == j && is_declared(i));
+        let d = ruiz_equilibration(a, threads, |i, j| i == j && is_declared(i));
         let mut off_diagonal = vec![0.0f64; a.nrows()];
         let mut fixed_norm = 0.0f64;
         let mut pairs = Vec::new();
@@ -2191,14 +2213,15 @@ impl KeptScale {
 /// rows O(1)) must be of comparable size for δ to be small against all of
 /// them (measured on the thesis shell without the ψ scaling: test residual
 /// 6e-5 unequilibrated, 3e-11 equilibrated).
-fn symmetric_equilibration(a: &SparseColMat<usize, f64>) -> Vec<f64> {
-    ruiz_equilibration(a, |_, _| false)
+fn symmetric_equilibration(a: &SparseColMat<usize, f64>, threads: usize) -> Vec<f64> {
+    ruiz_equilibration(a, threads, |_, _| false)
 }
 
 /// [`symmetric_equilibration`] with the entries (i, j) where `left_out`
 /// holds read as 0.
 fn ruiz_equilibration(
     a: &SparseColMat<usize, f64>,
+    threads: usize,
     left_out: impl Fn(usize, usize) -> bool + Sync,
 ) -> Vec<f64> {
     let n = a.nrows();
@@ -2228,6 +2251,7 @@ fn ruiz_equilibration(
     for _ in 0..3 {
         let row_max = in_two_halves(
             a,
+            threads,
             |columns| row_maxima(&d, columns),
             |mut first, second| {
                 first
@@ -2265,7 +2289,7 @@ const SOLVE_WORK_PER_ENTRY: f64 = 15.0;
 
 /// Matrices (and factors) with at least this many entries are checked,
 /// equilibrated and solved with on two threads when factorisations have
-/// two ([`with_threads`]).
+/// two ([`two_threads`]).
 const PARALLEL_ENTRIES: usize = 1 << 20;
 
 /// `work` over all of `a`'s columns: on two threads (each about half the
@@ -2273,21 +2297,23 @@ const PARALLEL_ENTRIES: usize = 1 << 20;
 /// large, else at once.
 fn in_two_halves<R: Send>(
     a: &SparseColMat<usize, f64>,
+    threads: usize,
     work: impl Fn(std::ops::Range<usize>) -> R + Sync,
     combine: impl FnOnce(R, R) -> R,
 ) -> R {
-    in_column_halves(a.symbolic().col_ptr(), work, combine)
+    in_column_halves(a.symbolic().col_ptr(), threads, work, combine)
 }
 
 /// [`in_two_halves`] for the columns of a compressed pattern given by its
 /// column pointers (`col_ptr[n]` = its number of entries).
 fn in_column_halves<R: Send>(
     col_ptr: &[usize],
+    threads: usize,
     work: impl Fn(std::ops::Range<usize>) -> R + Sync,
     combine: impl FnOnce(R, R) -> R,
 ) -> R {
     let n = col_ptr.len() - 1;
-    let Some(split) = column_halves(col_ptr) else {
+    let Some(split) = column_halves(col_ptr, threads) else {
         return work(0..n);
     };
     std::thread::scope(|scope| {
@@ -2299,25 +2325,26 @@ fn in_column_halves<R: Send>(
 
 /// Where [`in_column_halves`] splits the columns of `col_ptr` (the
 /// first column of the second half), or None when it works on one thread.
-fn column_halves(col_ptr: &[usize]) -> Option<usize> {
+fn column_halves(col_ptr: &[usize], threads: usize) -> Option<usize> {
     let n = col_ptr.len() - 1;
     let nnz = col_ptr[n];
-    (two_threads() && nnz >= PARALLEL_ENTRIES)
+    (two_threads(threads) && nnz >= PARALLEL_ENTRIES)
         .then(|| col_ptr.partition_point(|&p| p < nnz / 2).min(n))
 }
 
 /// The LDLᵀ analysis in the ordering `solves` asks for, with its two
 /// threads' schedule when supernodal and this thread factorises on two
-/// ([`with_threads`]).
+/// ([`two_threads`]).
 fn ldlt_analysis(
     a: &SparseColMat<usize, f64>,
     n_primal: usize,
     solves: Solves,
     what: &str,
+    threads: usize,
 ) -> Result<SymbolicAnalysis> {
     let symbolic = analyze_symmetric(a, n_primal, solves, what)?;
     let schedule = match symbolic.raw() {
-        SymbolicCholeskyRaw::Supernodal(raw) if two_threads() => {
+        SymbolicCholeskyRaw::Supernodal(raw) if two_threads(threads) => {
             TreeSchedule::new(raw).map(Arc::new)
         }
         _ => None,
@@ -2532,6 +2559,8 @@ pub struct RegularizedLdlt {
     /// The fraction of a whole factorisation's estimated work this one did
     /// (below 1 where it kept supernodes of the last one).
     factorized: f64,
+    /// The threads of its refinement's products ([`two_threads`]).
+    threads: usize,
 }
 
 impl Drop for RegularizedLdlt {
@@ -2542,8 +2571,8 @@ impl Drop for RegularizedLdlt {
 }
 
 impl RegularizedLdlt {
-    /// The two threads' split of the analysis is used when this thread's
-    /// factorisations have two threads ([`with_threads`]); `entry_scale` is
+    /// The two threads' split of the analysis is used when `threads` is
+    /// two or more ([`two_threads`]); `entry_scale` is
     /// the scale of the matrix's entries ([`checked_scale`]). With `kept`
     /// (the matrix scaled by it: `equilibration` is its), the supernodes
     /// that the changes since the spare factor's matrix do not reach are
@@ -2558,6 +2587,7 @@ impl RegularizedLdlt {
         kept: Option<&KeptScale>,
         spare_factors: &Arc<SpareFactors>,
         what: &str,
+        threads: usize,
     ) -> Result<Self> {
         let LdltAnalysis {
             symbolic,
@@ -2567,7 +2597,7 @@ impl RegularizedLdlt {
         let symbolic = symbolic.clone();
         let a = &*matrix;
         let Equilibration { d: scale, norm } =
-            equilibration.unwrap_or_else(|| Equilibration::of(a));
+            equilibration.unwrap_or_else(|| Equilibration::of(a, threads));
         let (mut values, last) = spare_factors.take(symbolic.len_val(), what)?;
         let regularization = |norm: f64| {
             let norm = norm.max(f64::MIN_POSITIVE);
@@ -2580,8 +2610,8 @@ impl RegularizedLdlt {
         // Two threads read A's values in place (the positions of its
         // values exist with the schedule, when they fit 32 bits); faer
         // reads a scaled copy in its order.
-        let tree = schedule.as_ref().filter(|_| two_threads());
-        let entries = tree.and_then(|_| ordered.entries(a, &scale, norm));
+        let tree = schedule.as_ref().filter(|_| two_threads(threads));
+        let entries = tree.and_then(|_| ordered.entries(a, &scale, norm, threads));
         let (mut inputs, mut factorized) = (None, 1.0);
         let done = match (symbolic.raw(), tree, entries) {
             (SymbolicCholeskyRaw::Supernodal(raw), Some(tree), Some(entries)) => {
@@ -2627,6 +2657,7 @@ impl RegularizedLdlt {
             spare_factors: spare_factors.clone(),
             inputs,
             factorized,
+            threads,
         })
     }
 
@@ -2645,7 +2676,7 @@ impl RegularizedLdlt {
         self.raw_solve(&mut x, 1);
         let r = self
             .storage
-            .residual(self.matrix.as_ref().as_ref(), &x, &rhs);
+            .residual(self.matrix.as_ref().as_ref(), &x, &rhs, self.threads);
         self.raw_solves_suffice =
             self.entry_scale.excess(&r, &x, &rhs, |i| self.diagonal(i)) <= 1.0;
     }
@@ -2727,7 +2758,10 @@ impl RegularizedLdlt {
         for c in 0..k {
             let (x, bc) = (&mut b[c * n..(c + 1) * n], &rhs[c * n..(c + 1) * n]);
             refine_to_round_off(
-                |v| self.storage.product(self.matrix.as_ref().as_ref(), v),
+                |v| {
+                    self.storage
+                        .product(self.matrix.as_ref().as_ref(), v, self.threads)
+                },
                 |i| self.diagonal(i),
                 &self.entry_scale,
                 x,
@@ -2742,7 +2776,10 @@ impl RegularizedLdlt {
     fn solve_with_product(&self, b: &mut [f64]) -> Vec<f64> {
         solve_refined(
             b,
-            |v| self.storage.product(self.matrix.as_ref().as_ref(), v),
+            |v| {
+                self.storage
+                    .product(self.matrix.as_ref().as_ref(), v, self.threads)
+            },
             |i| self.diagonal(i),
             &self.entry_scale,
             |d| self.raw_solve(d, 1),
@@ -2854,13 +2891,14 @@ impl OrderedPattern {
         a: &'a SparseColMat<usize, f64>,
         scale: &[f64],
         norm: Option<f64>,
+        threads: usize,
     ) -> Option<OrderedEntries<'a>> {
         let source = self.source.as_deref()?;
         Some(OrderedEntries {
             pattern: self.pattern.as_ref(),
             source,
             values: a.val(),
-            norm: norm.unwrap_or_else(|| equilibrated_norm(a, scale)),
+            norm: norm.unwrap_or_else(|| equilibrated_norm(a, scale, threads)),
             scale: self.in_order(scale),
         })
     }
@@ -2970,7 +3008,7 @@ struct OrderedEntries<'a> {
 
 /// max |v (d_i d_j)| over A's lower triangle, D = diag(`scale`): the
 /// largest entry of D A D, on two threads as the equilibration.
-fn equilibrated_norm(a: &SparseColMat<usize, f64>, scale: &[f64]) -> f64 {
+fn equilibrated_norm(a: &SparseColMat<usize, f64>, scale: &[f64], threads: usize) -> f64 {
     let (col_ptr, row_idx, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
     let largest = |columns: std::ops::Range<usize>| {
         let mut norm = 0.0f64;
@@ -2985,7 +3023,7 @@ fn equilibrated_norm(a: &SparseColMat<usize, f64>, scale: &[f64]) -> f64 {
         }
         norm
     };
-    in_two_halves(a, largest, f64::max)
+    in_two_halves(a, threads, largest, f64::max)
 }
 
 /// Solves A x = b in place with `raw_solve` (an approximate inverse), then
@@ -3049,9 +3087,15 @@ pub fn mat_vec(a: &SparseColMat<usize, f64>, x: &[f64]) -> Vec<f64> {
 }
 
 /// y = A x for a matrix of `kind` as this module reads it: a symmetric one
-/// given by its lower triangle implies the upper one (`Storage`).
-pub fn product(a: &SparseColMat<usize, f64>, kind: MatrixKind, x: &[f64]) -> Vec<f64> {
-    Storage::of(a.as_ref(), kind).product(a.as_ref(), x)
+/// given by its lower triangle implies the upper one (`Storage`), a large
+/// one multiplied on `threads` ([`two_threads`]).
+pub fn product(
+    a: &SparseColMat<usize, f64>,
+    kind: MatrixKind,
+    x: &[f64],
+    threads: usize,
+) -> Vec<f64> {
+    Storage::of(a.as_ref(), kind).product(a.as_ref(), x, threads)
 }
 
 /// The lower triangle of `a` (its entries on and below the diagonal), made
@@ -3235,7 +3279,7 @@ mod tests {
         let expected = mat_vec(&whole, &x);
         let scale = norm_inf(&expected);
         for threads in [1, 2] {
-            let y = with_threads(threads, || product(&lower, kind, &x));
+            let y = product(&lower, kind, &x, threads);
             let worst = norm_inf(&difference(&expected, &y));
             assert!(
                 worst <= 1e-14 * scale,
@@ -3285,11 +3329,9 @@ mod tests {
             .map(|i| ((i * 104_729) % 89) as f64 / 89.0)
             .collect();
         let recovered = |threads: usize| {
-            with_threads(threads, || {
-                let mut x = b.clone();
-                plan.recover(&local, &x_r, &mut x, false);
-                x
-            })
+            let mut x = b.clone();
+            plan.recover(&local, &x_r, &mut x, false, threads);
+            x
         };
         let (one, two) = (recovered(1), recovered(2));
         assert_eq!(&one[..n_r], &x_r[..]);
@@ -3332,12 +3374,12 @@ mod tests {
             SparseColMat::new(pattern, values)
         };
         for threads in [1, 2] {
-            with_threads(threads, || {
+            {
                 // (value position, value): an off-diagonal entry, then diagonal ones.
                 for (k, v) in [(2 * (n / 2) + 1, -9.0), (0, 7.5), (2 * (n - 1), -1e40)] {
                     let mut values = vec![1.0; 2 * n - 1];
                     values[k] = v;
-                    let scale = checked_scale(&bidiagonal(values), "test").unwrap();
+                    let scale = checked_scale(&bidiagonal(values), "test", threads).unwrap();
                     let what = format!("entry {k} ({threads} threads)");
                     assert_eq!(scale.norm, v.abs(), "{what}");
                     let off_diagonal = if k % 2 == 1 { v.abs() } else { 1.0 };
@@ -3347,12 +3389,12 @@ mod tests {
                     for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
                         let mut values = vec![1.0; 2 * n - 1];
                         values[k] = bad;
-                        let e = checked_scale(&bidiagonal(values), "test").unwrap_err();
+                        let e = checked_scale(&bidiagonal(values), "test", threads).unwrap_err();
                         let expected = format!("entry {k} is not finite");
                         assert!(e.to_string().contains(&expected), "{bad}: {e}");
                     }
                 }
-            });
+            }
         }
     }
 
@@ -3421,7 +3463,7 @@ mod tests {
         let (_, lower) = symmetric();
         let col_ptr = lower.symbolic().col_ptr().to_vec();
         let declared = [col_ptr[1], col_ptr[3]];
-        let first = checked_scale(&lower, "test").unwrap();
+        let first = checked_scale(&lower, "test", 1).unwrap();
         (lower, col_ptr, declared, first)
     }
 
@@ -3443,7 +3485,7 @@ mod tests {
         for (v1, v3) in [(3.0, 2.0), (-1e40, 0.5), (0.0, -7.0)] {
             let next = with_values(&lower, &declared, &[v1, v3]);
             let scale = fixed.with(&next, &declared, "test").unwrap();
-            let whole = checked_scale(&next, "test").unwrap();
+            let whole = checked_scale(&next, "test", 1).unwrap();
             assert_eq!(
                 (scale.norm, scale.off_diagonal),
                 (whole.norm, whole.off_diagonal)
@@ -3461,9 +3503,9 @@ mod tests {
     #[test]
     fn declared_diagonal_entries_reequilibrate_their_rows_only() {
         let (lower, col_ptr, declared, first) = with_declared_diagonal();
-        let mut kept = KeptScale::of(&lower, first, &declared).expect("rows 1 and 3 apart");
+        let mut kept = KeptScale::of(&lower, first, &declared, 1).expect("rows 1 and 3 apart");
         // The other rows: Ruiz's with the declared entries read as 0.
-        let d0 = symmetric_equilibration(&with_values(&lower, &declared, &[0.0, 0.0]));
+        let d0 = symmetric_equilibration(&with_values(&lower, &declared, &[0.0, 0.0]), 1);
         // |(D A D)_ij| of a lower triangle, each entry in its row and column.
         let row_maxima = |a: &SparseColMat<usize, f64>, d: &[f64]| {
             let mut m = vec![0.0f64; 4];
@@ -3479,7 +3521,7 @@ mod tests {
         for (v1, v3) in [(3.0, 2.0), (-1e40, 0.5), (0.0, -7.0), (1e-30, 0.0)] {
             let next = with_values(&lower, &declared, &[v1, v3]);
             let (scale, equilibration) = kept.with(&next, "test").unwrap();
-            let whole = checked_scale(&next, "test").unwrap();
+            let whole = checked_scale(&next, "test", 1).unwrap();
             assert_eq!(
                 (scale.norm, scale.off_diagonal),
                 (whole.norm, whole.off_diagonal)
@@ -3495,12 +3537,12 @@ mod tests {
                     m[i]
                 );
             }
-            assert_eq!(equilibration.norm, Some(equilibrated_norm(&next, d)));
+            assert_eq!(equilibration.norm, Some(equilibrated_norm(&next, d, 1)));
         }
         // Two declared rows sharing an entry (2, 1), or an entry off the
         // diagonal: nothing kept.
-        assert!(KeptScale::of(&lower, first, &[col_ptr[1], col_ptr[2]]).is_none());
-        assert!(KeptScale::of(&lower, first, &[col_ptr[0] + 1]).is_none());
+        assert!(KeptScale::of(&lower, first, &[col_ptr[1], col_ptr[2]], 1).is_none());
+        assert!(KeptScale::of(&lower, first, &[col_ptr[0] + 1], 1).is_none());
     }
 
     #[test]
@@ -3532,7 +3574,7 @@ mod tests {
         );
         let x = [1.0, -2.0, 0.5, 3.0];
         let storage = Storage::LowerTriangle;
-        assert_eq!(storage.product(lower.as_ref(), &x), mat_vec(&whole, &x));
+        assert_eq!(storage.product(lower.as_ref(), &x, 1), mat_vec(&whole, &x));
         let abs_x: Vec<f64> = x.iter().map(|v| v.abs()).collect();
         let abs_whole = SparseColMat::new(
             whole.symbolic().to_owned().unwrap(),
@@ -3594,8 +3636,8 @@ mod tests {
         }
         let loose = SymbolicSparseColMat::new_checked(4, 4, col_ptr, Some(col_nnz), row_idx);
         let loose = SparseColMat::new(loose, vec![2.0; 4 + full.val().len()]);
-        assert_eq!(pattern_hash(&loose), pattern_hash(&full));
-        assert_ne!(pattern_hash(&lower), pattern_hash(&full));
+        assert_eq!(pattern_hash(&loose, 1), pattern_hash(&full, 1));
+        assert_ne!(pattern_hash(&lower, 1), pattern_hash(&full, 1));
     }
 
     /// The acceptance rules on the measured cases they were set by

@@ -681,7 +681,7 @@ pub fn results_on_solver_threads(
     problem: &ContactProblem,
     report: &SolveReport,
 ) -> ResultData {
-    linear_options(&scene.solver).run(|| system.results(problem, report))
+    system.results(problem, report, linear_options(&scene.solver).threads)
 }
 
 /// What a solve writes: the model's results, the scene text, the errors

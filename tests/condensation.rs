@@ -435,6 +435,7 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
         Solves::Few,
         Some(&g),
         "toy",
+        1,
     )
     .unwrap();
     // The value position of the diagonal entry (i, i).

@@ -789,7 +789,7 @@ fn a_problem_stored_by_its_lower_triangle_keeps_those_entries_and_products() {
     }
     assert!(lower.val().len() * 10 < whole.val().len() * 6);
     let diff: Vec<f64> = problem
-        .product(&x)
+        .product(&x, 1)
         .iter()
         .zip(&ax_whole)
         .map(|(a, b)| a - b)
@@ -856,7 +856,7 @@ fn a_symmetric_matrix_given_by_its_lower_triangle_solves_as_the_whole() {
     assert!(res < 1e-10, "{res:e}");
     // Refinement multiplies by the implied whole matrix too.
     let mut x_refined = x.clone();
-    let refined = refine(&lower, problem.kind, &f, &problem.rhs, &mut x_refined, 1);
+    let refined = refine(&lower, problem.kind, &f, &problem.rhs, &mut x_refined, 1, 1);
     assert!(
         refined < 1e-10 && (refined - rel(&x_refined)).abs() < 1e-12,
         "{refined:e}"
@@ -1058,7 +1058,7 @@ fn grid_newton_matrix(
 /// for a fraction of the work; and the counts say so.
 #[test]
 fn a_declared_change_refactorises_only_the_supernodes_it_reaches() {
-    obstacle_fem::linalg::with_threads(2, || {
+    {
         let k = 150;
         let zone = |i: usize| (i / 7).is_multiple_of(5);
         let (first, n_primal, declared) = grid_newton_matrix(k, zone);
@@ -1079,7 +1079,11 @@ fn a_declared_change_refactorises_only_the_supernodes_it_reaches() {
         // order after them, where a row's d_i reaches its neighbours' columns.
         for solves in [Solves::Few, Solves::Many] {
             let factoriser = || {
-                let mut f = ReusableFactorization::analyze(&first, kind, solves, "grid").unwrap();
+                // Two threads: the tree's split, which the partial
+                // refactorisation needs.
+                let mut f =
+                    ReusableFactorization::analyze_with(&first, kind, solves, None, "grid", 2)
+                        .unwrap();
                 f.keep_eliminations(Some(&declared));
                 f
             };
@@ -1124,5 +1128,5 @@ fn a_declared_change_refactorises_only_the_supernodes_it_reaches() {
             }
             assert!(norm_inf(&r) <= 1e-9 * norm_inf(&b), "{:e}", norm_inf(&r));
         }
-    });
+    }
 }

@@ -1419,7 +1419,7 @@ mod tests {
         let regularization = test_regularization(&pattern.signs);
         let ones = vec![1.0; n];
         let whole = |a: &SparseColMat<usize, f64>| {
-            let entries = pattern.entries(a, &ones, None).expect("positions kept");
+            let entries = pattern.entries(a, &ones, None, 2).expect("positions kept");
             let mut values = vec![f64::NAN; raw.len_val()];
             factorize(&mut values, &entries, &regularization, raw, &schedule, None).unwrap();
             values
@@ -1447,7 +1447,7 @@ mod tests {
         assert!(fraction > 0.0 && fraction < 0.9, "{fraction}");
         assert!(only.iter().any(|&f| !f) && only.iter().any(|&f| f));
         let mut partial = last.clone();
-        let entries = pattern.entries(&next, &ones, None).unwrap();
+        let entries = pattern.entries(&next, &ones, None, 2).unwrap();
         factorize(
             &mut partial,
             &entries,
@@ -1480,7 +1480,7 @@ mod tests {
         let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
         let (n, raw) = (a.nrows(), supernodal_part(&symbolic));
         let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
-        let entries = pattern.entries(&a, &vec![1.0; n], None).unwrap();
+        let entries = pattern.entries(&a, &vec![1.0; n], None, 2).unwrap();
         let regularization = test_regularization(&pattern.signs);
         let mut values = vec![f64::NAN; raw.len_val()];
         factorize(&mut values, &entries, &regularization, raw, &schedule, None).unwrap();
@@ -1539,7 +1539,7 @@ mod tests {
         let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let ordered = pattern.equilibrated(&a, &vec![1.0; n]);
         let entries = pattern
-            .entries(&a, &vec![1.0; n], None)
+            .entries(&a, &vec![1.0; n], None, 2)
             .expect("positions kept");
         let regularization = test_regularization(&pattern.signs);
         let mut faers = vec![0.0; raw.len_val()];

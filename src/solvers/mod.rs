@@ -91,24 +91,24 @@ impl ContactProblem {
         self.constraint.as_ref().map_or(0, |c| c.obstacle.len())
     }
 
-    /// A x, whichever way A is stored.
-    pub fn product(&self, x: &[f64]) -> Vec<f64> {
+    /// A x, whichever way A is stored (a large A on `threads`).
+    pub fn product(&self, x: &[f64], threads: usize) -> Vec<f64> {
         assert_eq!(
             self.matrix.ncols(),
             self.n(),
             "A is read while the active set holds it (`ContactProblem::take_matrix`)"
         );
-        crate::linalg::product(&self.matrix, self.kind, x)
+        crate::linalg::product(&self.matrix, self.kind, x, threads)
     }
 
     /// The strain energy ½ Uᵀ K U and the external work Fᵀ U of the primal
     /// part U of x (the first `n_primal` unknowns; K is A's primal block, so
-    /// the equality multipliers' coupling is left out).
-    pub fn energies(&self, x: &[f64]) -> (f64, f64) {
+    /// the equality multipliers' coupling is left out); K U on `threads`.
+    pub fn energies(&self, x: &[f64], threads: usize) -> (f64, f64) {
         let np = self.n_primal;
         let mut primal = x.to_vec();
         primal[np..].fill(0.0);
-        let ku = self.product(&primal);
+        let ku = self.product(&primal, threads);
         let strain: f64 = 0.5 * (0..np).map(|i| x[i] * ku[i]).sum::<f64>();
         let work: f64 = (0..np).map(|i| x[i] * self.rhs[i]).sum();
         (strain, work)
@@ -159,7 +159,8 @@ impl SolverOptions {
 /// Solves a contact problem by the method of `options`; a problem without
 /// constraint is one linear solve, whatever the method. `probes` are
 /// recorded per iteration by the methods that take them (Uzawa). The
-/// kernels run on the linear solver's threads. The solve owns the problem
+/// kernels run on the linear solver's threads (`LinearOptions::threads`).
+/// The solve owns the problem
 /// and gives it back unchanged with the report: the active set builds its
 /// Newton matrix in A's arrays meanwhile ([`active_set`]).
 pub fn solve(
@@ -173,11 +174,11 @@ pub fn solve(
         return Ok((problem, report));
     }
     let report = match options {
-        SolverOptions::Uzawa(o) => linear.run(|| {
+        SolverOptions::Uzawa(o) => {
             // One factorisation, reused by every iteration.
             let (factors, seconds) = factorize_system(&problem, Solves::Many, &linear)?;
             uzawa(&problem, factors.as_ref(), seconds, o, probes)
-        }),
+        }
         SolverOptions::UzawaSplit(o) => uzawa_split(&problem, o),
         SolverOptions::DualAccelerated(o) => dual_accelerated(&problem, o),
         SolverOptions::ActiveSet(o) => return active_set(problem, o),

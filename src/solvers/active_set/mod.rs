@@ -199,14 +199,6 @@ impl ColdStart {
 /// solve owns the problem: its Newton matrix is built in A's arrays
 /// ([`NewtonMatrix::lend`]), and A goes back into the problem it returns.
 pub fn active_set(
-    problem: ContactProblem,
-    options: &ActiveSetOptions,
-) -> Result<(ContactProblem, SolveReport)> {
-    options.linear.run(|| semismooth_newton(problem, options))
-}
-
-/// [`active_set`] on the linear solver's threads.
-fn semismooth_newton(
     mut problem: ContactProblem,
     options: &ActiveSetOptions,
 ) -> Result<(ContactProblem, SolveReport)> {
@@ -257,7 +249,7 @@ fn semismooth_newton(
             }
         }
     };
-    let mut newton = NewtonMatrix::lend(&mut problem, kind, compliance)?;
+    let mut newton = NewtonMatrix::lend(&mut problem, kind, compliance, options.linear.threads)?;
     let report = newton_steps(&problem, &mut newton, &c_rule, options, (start, t))?;
     newton.give_back(&mut problem);
     Ok((problem, report))
@@ -547,7 +539,7 @@ impl IterateProducts {
             ct_lambda: Some(&self.ct_lambda),
             compliance: Some(&newton.compliance),
         };
-        kkt_measures_with(problem, x, lambda, products)
+        kkt_measures_with(problem, x, lambda, products, newton.threads)
     }
 }
 

@@ -35,6 +35,8 @@ pub(super) struct NewtonMatrix {
     /// S̃ of A for the measures (`measures::jacobi_dual_diagonal`), made
     /// before A is lent.
     pub(super) compliance: Vec<f64>,
+    /// The threads of its products (`solver.threads`).
+    pub(super) threads: usize,
 }
 
 impl NewtonMatrix {
@@ -46,6 +48,7 @@ impl NewtonMatrix {
         problem: &mut ContactProblem,
         kind: MatrixKind,
         compliance: Vec<f64>,
+        threads: usize,
     ) -> Result<Self> {
         let lower = kind != MatrixKind::General;
         if lower {
@@ -123,6 +126,7 @@ impl NewtonMatrix {
             switched_off: a_max / (f64::EPSILON * f64::EPSILON),
             scale,
             compliance,
+            threads,
         })
     }
 
@@ -140,7 +144,7 @@ impl NewtonMatrix {
     pub(super) fn a_product(&self, x: &[f64]) -> Vec<f64> {
         let mut z = x.to_vec();
         z.resize(self.matrix.ncols(), 0.0);
-        let mut y = crate::linalg::product(&self.matrix, self.kind, &z);
+        let mut y = crate::linalg::product(&self.matrix, self.kind, &z, self.threads);
         y.truncate(self.n);
         y
     }
@@ -274,6 +278,7 @@ impl<'f> PdasSolves<'f> {
                 rhs,
                 &mut z,
                 steps,
+                newton.threads,
             ),
         };
         self.kept = Some((factorization, active.to_vec()));
@@ -432,7 +437,7 @@ impl SwitchedSolve {
         for &i in self.on.iter().chain(&self.off) {
             masked[n + i] = 0.0;
         }
-        let mut y = crate::linalg::product(&newton.matrix, newton.kind, &masked);
+        let mut y = crate::linalg::product(&newton.matrix, newton.kind, &masked, newton.threads);
         let n_off = self.off.len();
         for (q, &j) in self.on.iter().enumerate() {
             for &(k, v) in &self.columns[n_off + q] {
