@@ -134,6 +134,7 @@ pub(super) fn check_solve(
 /// set switches off by its diagonal, at the shell's ρ = 1e12: s_i (C x)_i
 /// ~ 1e12 ‖x‖) keeps the round-off of its own sum, 3.7e-5 of ‖b‖∞ there,
 /// at a componentwise error of 3e-16.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn judge_solve(
     a: &SparseColMat<usize, f64>,
     storage: Storage,
