@@ -10,7 +10,7 @@ use crate::space::{Element, LocalBasis, Space, TriangleGeometry, MAX_LOCAL};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 
 use crate::linalg::InteriorGroups;
-/// The sparse kernels live in linalg.rs; re-exported for the FE users.
+/// The sparse kernels live in linalg/kernels.rs; re-exported for the FE users.
 pub use crate::linalg::{mat_t_vec, mat_vec, norm2, norm_inf};
 
 /// A basis function (or an FE function) at one quadrature point.

@@ -164,12 +164,12 @@ pub fn scene_condition(scene: &Scene) -> Result<Conditions> {
         }
     }
     let f = factor_once(pattern(a, problem.kind, what), &linear)?;
-    let kappa = linear.run(|| condition_estimate(a, f.as_ref()));
+    let kappa = condition_estimate(a, f.as_ref());
     let primal = (problem.n_primal < problem.n()).then(|| {
         let k = primal_block(&problem);
         let kind = MatrixKind::SymmetricPositiveDefinite;
         factor_once(pattern(&k, kind, "K_ρ (a_ρ)"), &linear)
-            .map(|f| linear.run(|| condition_estimate(&k, f.as_ref())))
+            .map(|f| condition_estimate(&k, f.as_ref()))
             .map_err(|e| e.to_string())
     });
     Ok((kappa, primal))

@@ -538,7 +538,7 @@ pub fn solve_on<'m>(
         Start::Carried(dofs) => warm_start(system.as_ref(), &problem, dofs)?,
     };
     let options = solver_options(&scene.solver, scene.model, warm, show_progress);
-    let report = crate::solvers::solve(&problem, &options, &system.probes())
+    let (problem, report) = crate::solvers::solve(problem, &options, &system.probes())
         .map_err(|e| guards::name_matrix_inputs(scene, e))?;
     phase_end("solve");
     Ok(Solved {
@@ -676,7 +676,7 @@ pub fn results_on_solver_threads(
     problem: &ContactProblem,
     report: &SolveReport,
 ) -> ResultData {
-    linear_options(&scene.solver).run(|| system.results(problem, report))
+    system.results(problem, report, linear_options(&scene.solver).threads)
 }
 
 /// What a solve writes: the model's results, the scene text, the errors

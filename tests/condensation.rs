@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{fixed_uzawa_options, parameter};
+use common::{fixed_uzawa_options, parameter, solve};
 use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::linalg::{
     factorize_checked, factorize_checked_with, Changed, InteriorGroups, MatrixKind,
@@ -18,7 +18,7 @@ use obstacle_fem::solvers::active_set::{ActiveSetOptions, ColdStart};
 use obstacle_fem::solvers::dual_accelerated::DualAcceleratedOptions;
 use obstacle_fem::solvers::uzawa::UzawaStep;
 use obstacle_fem::solvers::uzawa_split::UzawaSplitOptions;
-use obstacle_fem::solvers::{solve, ContactProblem, LinearOptions, SolveReport, SolverOptions};
+use obstacle_fem::solvers::{ContactProblem, LinearOptions, SolveReport, SolverOptions};
 use std::path::Path;
 
 /// The three problems with interior groups: (label, scene, overrides).
@@ -435,6 +435,7 @@ fn kept_eliminations_serve_a_matrix_changed_between_remaining_unknowns() {
         Solves::Few,
         Some(&g),
         "toy",
+        1,
     )
     .unwrap();
     // The value position of the diagonal entry (i, i).

@@ -136,7 +136,7 @@ fn rust_run(mesh: &Mesh, uzawa_form: Option<(StepForm, usize)>) -> Run {
             assert_eq!(r.stop_reason, "max_iter");
             r
         }
-        None => solve_linear(&problem, &factorization, factor).unwrap_or_else(|e| panic!("{e}")),
+        None => solve_linear(&problem, &factorization, factor, 1).unwrap_or_else(|e| panic!("{e}")),
     };
     let total = start.elapsed().as_secs_f64();
     let layout = ShellLayout::new(mesh);

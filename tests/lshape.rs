@@ -6,14 +6,14 @@
 
 mod common;
 
-use common::{assert_effectivity_per_step, solve_scene, text};
+use common::{assert_effectivity_per_step, solve, solve_scene, text};
 use obstacle_fem::mesh::Mesh;
 use obstacle_fem::output::{read_steps, ResultData};
 use obstacle_fem::pipeline::{
     assemble, result_data, scene_mesh, setup_model, solver_options, warm_start,
 };
 use obstacle_fem::scene::Scene;
-use obstacle_fem::solvers::{solve, SolveReport, SolverOptions};
+use obstacle_fem::solvers::{SolveReport, SolverOptions};
 use obstacle_fem::transfer::prolong_dofs;
 use std::path::{Path, PathBuf};
 

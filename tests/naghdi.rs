@@ -56,7 +56,7 @@ fn solve_free(
     let (problem, numbering) = assemble_shell(mesh, chart, material, rho, load, None);
     let start = Instant::now();
     let f = factorize_checked(&problem.matrix, problem.kind, Solves::Few, "shell").unwrap();
-    let report = solve_linear(&problem, &f, start.elapsed().as_secs_f64()).unwrap();
+    let report = solve_linear(&problem, &f, start.elapsed().as_secs_f64(), 1).unwrap();
     let layout = ShellLayout::new(mesh);
     let full = numbering.extend(&report.x, &vec![0.0; layout.n_total()]);
     let np = problem.n_primal;
@@ -301,7 +301,7 @@ fn hypar_penalty_rho() {
         scale_tangency_multiplier(&mut problem, sigma);
         let f =
             factorize_checked(&problem.matrix, problem.kind, Solves::Few, "scaled shell").unwrap();
-        let report = solve_linear(&problem, &f, 0.0).unwrap();
+        let report = solve_linear(&problem, &f, 0.0, 1).unwrap();
         let np = problem.n_primal;
         let u = &report.x[..np];
         let bu = report.measures.tangency / sigma;

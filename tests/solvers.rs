@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::parameter;
+use common::{active_set, parameter, solve};
 use faer::sparse::{SparseColMat, Triplet};
 use obstacle_fem::assembly::{norm_inf, DofNumbering};
 use obstacle_fem::gmsh::run_gmsh;
@@ -27,13 +27,13 @@ use obstacle_fem::models::naghdi::geometry::{Chart, Material};
 use obstacle_fem::models::ModelSystem;
 use obstacle_fem::pipeline::scene_mesh;
 use obstacle_fem::scene::{Scene, StepForm};
-use obstacle_fem::solvers::active_set::{active_set, ActiveSetOptions, ColdStart};
+use obstacle_fem::solvers::active_set::{ActiveSetOptions, ColdStart};
 use obstacle_fem::solvers::dual_accelerated::{dual_accelerated, DualAcceleratedOptions, Restart};
 use obstacle_fem::solvers::spectrum::estimate_dual_spectrum;
 use obstacle_fem::solvers::uzawa::{UzawaOptions, UzawaStep};
 use obstacle_fem::solvers::uzawa_split::{uzawa_split, PsiRiesz, SplitSteps, UzawaSplitOptions};
 use obstacle_fem::solvers::{
-    solve, Constraint, ContactProblem, DualNorm, SolveReport, SolverOptions, StopRule,
+    Constraint, ContactProblem, DualNorm, SolveReport, SolverOptions, StopRule,
 };
 use obstacle_fem::Error;
 use std::path::Path;
@@ -398,36 +398,41 @@ fn same_entries(a: &SparseColMat<usize, f64>, b: &SparseColMat<usize, f64>) -> b
         && a.val() == b.val()
 }
 
-/// The active set only reads A: A is unchanged after a solve and after an
-/// error, a symmetric A whole or as its lower triangle gives the same
-/// solve bit for bit, and so does a second solve; a general A with unused
-/// room after each column (faer's col_nnz) solves as the compressed one.
+/// The active set owns the problem while it solves (its Newton matrix is
+/// built in A's arrays) and gives A back entry for entry, whole or as its
+/// lower triangle; a symmetric A whole or as its lower triangle gives the
+/// same solve bit for bit, and so does a second solve; a general A with
+/// unused room after each column (faer's col_nnz) solves as the
+/// compressed one.
 #[test]
-fn the_active_set_reads_a_only() {
-    let mut problem = membrane("p1b-p0", 8);
+fn the_active_set_gives_a_back() {
+    use obstacle_fem::solvers::active_set::active_set;
+    let problem = membrane("p1b-p0", 8);
     let whole = problem.matrix.clone();
-    let first = active_set(&problem, &ActiveSetOptions::default()).unwrap();
-    assert!(first.converged && first.measures.kkt <= 1e-10);
-    assert!(same_entries(&problem.matrix, &whole));
-    let tight = ActiveSetOptions {
-        tol: 1e-30,
-        ..Default::default()
+    let general = ContactProblem {
+        kind: MatrixKind::General,
+        ..problem.clone()
     };
-    active_set(&problem, &tight).unwrap_err();
-    assert!(same_entries(&problem.matrix, &whole));
+    let (mut problem, first) = active_set(problem, &ActiveSetOptions::default()).unwrap();
+    assert!(first.converged && first.measures.kkt <= 1e-10);
+    // A symmetric A comes back as its lower triangle.
+    let lower = into_lower_triangle(whole.clone());
+    assert!(same_entries(&problem.matrix, &lower));
     problem.store_lower_triangle();
-    let lower = problem.matrix.clone();
-    let second = active_set(&problem, &ActiveSetOptions::default()).unwrap();
+    let (problem, second) = active_set(problem, &ActiveSetOptions::default()).unwrap();
     assert_eq!((&second.x, &second.lambda), (&first.x, &first.lambda));
     assert!(same_entries(&problem.matrix, &lower));
-    problem.kind = MatrixKind::General;
-    problem.matrix = whole.clone();
-    let compressed = active_set(&problem, &ActiveSetOptions::default()).unwrap();
-    problem.matrix = with_room_per_column(&whole);
-    let roomy = active_set(&problem, &ActiveSetOptions::default()).unwrap();
+    let (general, compressed) = active_set(general, &ActiveSetOptions::default()).unwrap();
+    assert!(same_entries(&general.matrix, &whole));
+    let roomy = ContactProblem {
+        matrix: with_room_per_column(&whole),
+        ..general
+    };
+    let (roomy, roomy_report) = active_set(roomy, &ActiveSetOptions::default()).unwrap();
+    assert!(same_entries(&roomy.matrix, &whole));
     assert!(compressed.converged && compressed.measures.kkt <= 1e-10);
     assert_eq!(
-        (&roomy.x, &roomy.lambda),
+        (&roomy_report.x, &roomy_report.lambda),
         (&compressed.x, &compressed.lambda)
     );
 }
@@ -516,7 +521,6 @@ fn active_set_detects_cycling() {
         }),
         interior: None,
     };
-    let general = problem.matrix.clone();
     let err = active_set(
         &problem,
         &ActiveSetOptions {
@@ -526,8 +530,6 @@ fn active_set_detects_cycling() {
     )
     .unwrap_err();
     eprintln!("cycling: {err}");
-    // A general A is left as it was, entry for entry.
-    assert!(same_entries(&problem.matrix, &general));
     match &err {
         Error::Numerical {
             measure, reason, ..
@@ -787,7 +789,7 @@ fn a_problem_stored_by_its_lower_triangle_keeps_those_entries_and_products() {
     }
     assert!(lower.val().len() * 10 < whole.val().len() * 6);
     let diff: Vec<f64> = problem
-        .product(&x)
+        .product(&x, 1)
         .iter()
         .zip(&ax_whole)
         .map(|(a, b)| a - b)
@@ -854,7 +856,7 @@ fn a_symmetric_matrix_given_by_its_lower_triangle_solves_as_the_whole() {
     assert!(res < 1e-10, "{res:e}");
     // Refinement multiplies by the implied whole matrix too.
     let mut x_refined = x.clone();
-    let refined = refine(&lower, problem.kind, &f, &problem.rhs, &mut x_refined, 1);
+    let refined = refine(&lower, problem.kind, &f, &problem.rhs, &mut x_refined, 1, 1);
     assert!(
         refined < 1e-10 && (refined - rel(&x_refined)).abs() < 1e-12,
         "{refined:e}"
@@ -1056,7 +1058,7 @@ fn grid_newton_matrix(
 /// for a fraction of the work; and the counts say so.
 #[test]
 fn a_declared_change_refactorises_only_the_supernodes_it_reaches() {
-    obstacle_fem::linalg::with_threads(2, || {
+    {
         let k = 150;
         let zone = |i: usize| (i / 7).is_multiple_of(5);
         let (first, n_primal, declared) = grid_newton_matrix(k, zone);
@@ -1077,7 +1079,11 @@ fn a_declared_change_refactorises_only_the_supernodes_it_reaches() {
         // order after them, where a row's d_i reaches its neighbours' columns.
         for solves in [Solves::Few, Solves::Many] {
             let factoriser = || {
-                let mut f = ReusableFactorization::analyze(&first, kind, solves, "grid").unwrap();
+                // Two threads: the tree's split, which the partial
+                // refactorisation needs.
+                let mut f =
+                    ReusableFactorization::analyze_with(&first, kind, solves, None, "grid", 2)
+                        .unwrap();
                 f.keep_eliminations(Some(&declared));
                 f
             };
@@ -1122,5 +1128,5 @@ fn a_declared_change_refactorises_only_the_supernodes_it_reaches() {
             }
             assert!(norm_inf(&r) <= 1e-9 * norm_inf(&b), "{:e}", norm_inf(&r));
         }
-    });
+    }
 }

@@ -511,10 +511,16 @@ impl CondensationPlan {
     /// (groups share boundary unknowns). Measured on the shell's Newton
     /// matrix at n = 256 (the solves of its first five steps): 0.026 →
     /// 0.015 s per solve.
-    pub(super) fn condense_rhs(&self, f: &LocalFactors, b: &[f64], transpose: bool) -> Vec<f64> {
+    pub(super) fn condense_rhs(
+        &self,
+        f: &LocalFactors,
+        b: &[f64],
+        transpose: bool,
+        threads: usize,
+    ) -> Vec<f64> {
         let mut rhs: Vec<f64> = self.remaining.iter().map(|&i| b[i]).collect();
         let n_groups = self.groups.len();
-        let Some(split) = column_halves(&self.coupling_offsets) else {
+        let Some(split) = column_halves(&self.coupling_offsets, threads) else {
             self.subtract_interior_terms(f, b, transpose, 0..n_groups, &mut rhs);
             return rhs;
         };
@@ -647,7 +653,14 @@ impl CondensationPlan {
     /// The groups are independent (each reads its own b_I and x_R): many
     /// are recovered on two threads ([`in_column_halves`], halves of about
     /// equal coupling entries), each value the same sum as on one.
-    pub(super) fn recover(&self, f: &LocalFactors, x_r: &[f64], b: &mut [f64], transpose: bool) {
+    pub(super) fn recover(
+        &self,
+        f: &LocalFactors,
+        x_r: &[f64],
+        b: &mut [f64],
+        transpose: bool,
+        threads: usize,
+    ) {
         let v = f.transposed_coupling.as_ref().filter(|_| transpose);
         let b_read: &[f64] = b;
         // x_I of the groups `groups`, in their order (one block per half).
@@ -684,10 +697,15 @@ impl CondensationPlan {
             }
             vec![out]
         };
-        let blocks = in_column_halves(&self.coupling_offsets, interior_values, |mut a, b| {
-            a.extend(b);
-            a
-        });
+        let blocks = in_column_halves(
+            &self.coupling_offsets,
+            threads,
+            interior_values,
+            |mut a, b| {
+                a.extend(b);
+                a
+            },
+        );
         for (&u, &x) in self.groups.indices.iter().zip(blocks.iter().flatten()) {
             b[u] = x;
         }

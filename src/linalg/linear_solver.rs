@@ -18,9 +18,7 @@
 //! Cholesky, signed-regularised LDLᵀ or LU, with its fallbacks, condensation
 //! and the tuned paths behind `Changed::Declared`) is the one implementation.
 
-use super::{
-    with_threads, Changed, Factorization, InteriorGroups, MatrixKind, ReusableFactorization, Solves,
-};
+use super::{Changed, Factorization, InteriorGroups, MatrixKind, ReusableFactorization, Solves};
 use crate::error::Result;
 use faer::sparse::SparseColMat;
 use serde::Deserialize;
@@ -50,7 +48,7 @@ impl LinearMethod {
 pub struct LinearOptions {
     pub method: LinearMethod,
     /// Threads of the factorisations and of the large kernels they and the
-    /// methods call ([`with_threads`]): 1 sequential, 2 or more two.
+    /// methods call (products with A, measures): 1 sequential, 2 or more two.
     pub threads: usize,
 }
 
@@ -61,14 +59,6 @@ impl Default for LinearOptions {
             method: LinearMethod::Direct,
             threads: 2,
         }
-    }
-}
-
-impl LinearOptions {
-    /// Runs `work` with these options' threads (the kernels a method calls
-    /// between its solves: products with A, measures).
-    pub fn run<R>(&self, work: impl FnOnce() -> R) -> R {
-        with_threads(self.threads, work)
     }
 }
 
@@ -189,7 +179,6 @@ pub fn factor_once(
 /// The sparse direct solver: [`ReusableFactorization`] on its threads.
 struct DirectSolver {
     factorizer: ReusableFactorization,
-    threads: usize,
     what: String,
 }
 
@@ -202,12 +191,10 @@ impl DirectSolver {
             interior,
             what,
         } = pattern;
-        let factorizer = with_threads(threads, || {
-            ReusableFactorization::analyze_with(matrix, kind, solves, interior, what)
-        })?;
+        let factorizer =
+            ReusableFactorization::analyze_with(matrix, kind, solves, interior, what, threads)?;
         Ok(DirectSolver {
             factorizer,
-            threads,
             what: what.to_string(),
         })
     }
@@ -215,7 +202,6 @@ impl DirectSolver {
     fn factors(&self, factorization: Factorization) -> Box<dyn Factors> {
         Box::new(DirectFactors {
             factorization,
-            threads: self.threads,
             refines_itself: self.factorizer.method() != "LU",
         })
     }
@@ -223,7 +209,7 @@ impl DirectSolver {
 
 impl LinearSolver for DirectSolver {
     fn factor(&mut self, a: &SparseColMat<usize, f64>) -> Result<Box<dyn Factors>> {
-        let (f, _) = with_threads(self.threads, || self.factorizer.factorize(a, &self.what))?;
+        let (f, _) = self.factorizer.factorize(a, &self.what)?;
         Ok(self.factors(f))
     }
 
@@ -232,9 +218,7 @@ impl LinearSolver for DirectSolver {
         a: &SparseColMat<usize, f64>,
         b: &[f64],
     ) -> Result<(Box<dyn Factors>, Vec<f64>, f64)> {
-        let (f, x, residual) = with_threads(self.threads, || {
-            self.factorizer.factorize_and_solve(a, b, &self.what)
-        })?;
+        let (f, x, residual) = self.factorizer.factorize_and_solve(a, b, &self.what)?;
         Ok((self.factors(f), x, residual))
     }
 
@@ -244,10 +228,9 @@ impl LinearSolver for DirectSolver {
         b: &[f64],
         changed: Changed,
     ) -> Result<(Box<dyn Factors>, Vec<f64>, f64)> {
-        let (f, x, residual) = with_threads(self.threads, || {
-            self.factorizer
-                .factorize_and_solve_shared(a, b, changed, &self.what)
-        })?;
+        let (f, x, residual) = self
+            .factorizer
+            .factorize_and_solve_shared(a, b, changed, &self.what)?;
         Ok((self.factors(f), x, residual))
     }
 
@@ -266,7 +249,7 @@ impl LinearSolver for DirectSolver {
     }
 }
 
-/// A direct factorisation's solves, on the calling thread's count (a
+/// A direct factorisation's solves, on the threads it was made for (a
 /// caller that factorised it itself, outside a [`LinearSolver`]).
 impl Factors for Factorization {
     fn solve_in_place(&self, b: &mut [f64]) {
@@ -296,10 +279,10 @@ impl Factors for Factorization {
     }
 }
 
-/// A direct factorisation whose solves run on its solver's threads.
+/// A direct factorisation of a [`LinearSolver`] (its solves run on the
+/// solver's threads, which the factorisation keeps).
 struct DirectFactors {
     factorization: Factorization,
-    threads: usize,
     /// Whether the factoriser ended on LDLᵀ or Cholesky rather than LU
     /// (`ReusableFactorization::method`, of S when condensed).
     refines_itself: bool,
@@ -307,17 +290,15 @@ struct DirectFactors {
 
 impl Factors for DirectFactors {
     fn solve_in_place(&self, b: &mut [f64]) {
-        with_threads(self.threads, || self.factorization.solve_in_place(b));
+        self.factorization.solve_in_place(b);
     }
 
     fn solve_with_product(&self, b: &mut [f64]) -> Option<Vec<f64>> {
-        with_threads(self.threads, || self.factorization.solve_with_product(b))
+        self.factorization.solve_with_product(b)
     }
 
     fn solve_unrefined_in_place(&self, b: &mut [f64]) {
-        with_threads(self.threads, || {
-            self.factorization.solve_unrefined_in_place(b)
-        });
+        self.factorization.solve_unrefined_in_place(b);
     }
 
     fn refines_itself(&self) -> bool {
@@ -330,8 +311,6 @@ impl Factors for DirectFactors {
         n: usize,
         solves: usize,
     ) -> Option<Vec<f64>> {
-        with_threads(self.threads, || {
-            self.factorization.inverse_gram(columns, n, solves)
-        })
+        self.factorization.inverse_gram(columns, n, solves)
     }
 }

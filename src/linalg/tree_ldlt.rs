@@ -1,5 +1,5 @@
 //! The numeric supernodal LDLᵀ with its elimination tree split between
-//! two threads (issue 13, item 3).
+//! two threads.
 //!
 //! faer's `factorize_supernodal_numeric_ldlt` is left-looking: it visits
 //! the supernodes in order, and its `Par` reaches only the dense kernels
@@ -1415,11 +1415,11 @@ mod tests {
     fn refactorising_the_changed_supernodes_equals_the_whole_factorisation() {
         let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
         let (n, raw) = (a.nrows(), supernodal_part(&symbolic));
-        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
+        let pattern = super::super::analysis::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let regularization = test_regularization(&pattern.signs);
         let ones = vec![1.0; n];
         let whole = |a: &SparseColMat<usize, f64>| {
-            let entries = pattern.entries(a, &ones, None).expect("positions kept");
+            let entries = pattern.entries(a, &ones, None, 2).expect("positions kept");
             let mut values = vec![f64::NAN; raw.len_val()];
             factorize(&mut values, &entries, &regularization, raw, &schedule, None).unwrap();
             values
@@ -1447,7 +1447,7 @@ mod tests {
         assert!(fraction > 0.0 && fraction < 0.9, "{fraction}");
         assert!(only.iter().any(|&f| !f) && only.iter().any(|&f| f));
         let mut partial = last.clone();
-        let entries = pattern.entries(&next, &ones, None).unwrap();
+        let entries = pattern.entries(&next, &ones, None, 2).unwrap();
         factorize(
             &mut partial,
             &entries,
@@ -1479,8 +1479,8 @@ mod tests {
     fn forward_sweeps_of_sparse_columns_give_their_inverse_products() {
         let (a, n_primal, symbolic, schedule) = analysed_grid_saddle(60);
         let (n, raw) = (a.nrows(), supernodal_part(&symbolic));
-        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
-        let entries = pattern.entries(&a, &vec![1.0; n], None).unwrap();
+        let pattern = super::super::analysis::OrderedPattern::new(&symbolic, &a, n_primal, true);
+        let entries = pattern.entries(&a, &vec![1.0; n], None, 2).unwrap();
         let regularization = test_regularization(&pattern.signs);
         let mut values = vec![f64::NAN; raw.len_val()];
         factorize(&mut values, &entries, &regularization, raw, &schedule, None).unwrap();
@@ -1536,10 +1536,10 @@ mod tests {
         let tops = schedule.owner.iter().filter(|&&o| o == TOP).count();
         assert!(tops > 0 && tops == schedule.top.len());
         assert!(schedule.top.iter().all(|&s| schedule.owner[s] == TOP));
-        let pattern = super::super::OrderedPattern::new(&symbolic, &a, n_primal, true);
+        let pattern = super::super::analysis::OrderedPattern::new(&symbolic, &a, n_primal, true);
         let ordered = pattern.equilibrated(&a, &vec![1.0; n]);
         let entries = pattern
-            .entries(&a, &vec![1.0; n], None)
+            .entries(&a, &vec![1.0; n], None, 2)
             .expect("positions kept");
         let regularization = test_regularization(&pattern.signs);
         let mut faers = vec![0.0; raw.len_val()];

@@ -627,7 +627,12 @@ impl ModelSystem for MembraneSystem<'_> {
     }
 
     /// Fields and coefficient vectors for the result file (docs/formulation.md §5).
-    fn results(&self, problem: &ContactProblem, report: &SolveReport) -> ResultData {
+    fn results(
+        &self,
+        problem: &ContactProblem,
+        report: &SolveReport,
+        _threads: usize,
+    ) -> ResultData {
         let u = self.u_coefficients(report);
         let mut data = ResultData {
             write_edges: self.u_space.element == Element::P2,

@@ -87,8 +87,10 @@ pub trait ModelSystem {
     fn probes(&self) -> Vec<Probe> {
         Vec::new()
     }
-    /// Fields, coefficient vectors and model attributes for the result file.
-    fn results(&self, problem: &ContactProblem, report: &SolveReport) -> ResultData;
+    /// Fields, coefficient vectors and model attributes for the result
+    /// file; products with A on `threads` (`solver.threads`).
+    fn results(&self, problem: &ContactProblem, report: &SolveReport, threads: usize)
+        -> ResultData;
     /// The inverse of `results`' `/dofs`: the primal unknowns x of the
     /// algebraic problem from coefficient vectors named and laid out as the
     /// result file stores them (values at fixed dofs are dropped). How a

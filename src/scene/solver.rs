@@ -56,7 +56,7 @@ pub struct SolverSpec {
     #[serde(default = "default_threads")]
     pub threads: i64,
     /// The linear solver of every method's systems: "direct" (the sparse
-    /// factorisations of src/linalg.rs behind the seam of
+    /// factorisations of src/linalg/ behind the seam of
     /// src/linalg/linear_solver.rs).
     #[serde(default)]
     pub linear: LinearMethod,

@@ -100,11 +100,6 @@ pub fn dual_accelerated(
     problem: &ContactProblem,
     options: &DualAcceleratedOptions,
 ) -> Result<SolveReport> {
-    options.linear.run(|| fista(problem, options))
-}
-
-/// [`dual_accelerated`] on the linear solver's threads.
-fn fista(problem: &ContactProblem, options: &DualAcceleratedOptions) -> Result<SolveReport> {
     let Some(c) = problem.constraint.as_ref() else {
         return solve_unconstrained(problem, &options.linear);
     };
@@ -173,7 +168,13 @@ fn fista(problem: &ContactProblem, options: &DualAcceleratedOptions) -> Result<S
             compliance: Some(&compliance),
             ..Products::default()
         };
-        let measures = kkt_measures_with(problem, &new_x, &new_lambda, products);
+        let measures = kkt_measures_with(
+            problem,
+            &new_x,
+            &new_lambda,
+            products,
+            options.linear.threads,
+        );
         let dual_step = new_lambda
             .iter()
             .zip(&lambda)

@@ -33,12 +33,14 @@ pub struct KktMeasures {
 }
 
 /// Computes the measures of (x, λ) for a problem. `cx` is C x when the
-/// caller already has it (Uzawa does: it needs it for the step).
+/// caller already has it (Uzawa does: it needs it for the step); A x is
+/// computed on `threads`.
 pub fn kkt_measures(
     problem: &ContactProblem,
     x: &[f64],
     lambda: &[f64],
     cx: Option<&[f64]>,
+    threads: usize,
 ) -> KktMeasures {
     kkt_measures_with(
         problem,
@@ -48,6 +50,7 @@ pub fn kkt_measures(
             cx,
             ..Products::default()
         },
+        threads,
     )
 }
 
@@ -68,18 +71,20 @@ pub struct Products<'a> {
     pub compliance: Option<&'a [f64]>,
 }
 
-/// [`kkt_measures`] with the products the caller has.
+/// [`kkt_measures`] with the products the caller has (those it has not
+/// computed on `threads`).
 pub fn kkt_measures_with(
     problem: &ContactProblem,
     x: &[f64],
     lambda: &[f64],
     products: Products,
+    threads: usize,
 ) -> KktMeasures {
     let n_primal = problem.n_primal;
     let cx = products.cx;
     let mut r = match products.ax {
         Some(ax) => ax.to_vec(),
-        None => problem.product(x),
+        None => problem.product(x, threads),
     };
     // The scale of stationarity: the largest of its three terms ‖F‖, ‖A x‖,
     // ‖Cᵀλ‖ (primal rows), so a zero load (the obstacle alone pushes) is

@@ -37,6 +37,7 @@ pub use crate::linalg::{LinearMethod, LinearOptions};
 pub use measures::{History, KktMeasures};
 
 /// The inequality constraint C x ≥ g with its multiplier space.
+#[derive(Clone)]
 pub struct Constraint {
     /// m × n, one row per multiplier dof.
     pub matrix: SparseColMat<usize, f64>,
@@ -60,6 +61,7 @@ impl Constraint {
 }
 
 /// An algebraic contact problem (see the module documentation).
+#[derive(Clone)]
 pub struct ContactProblem {
     /// The n × n system matrix A (stiffness, or a saddle-point matrix);
     /// of a symmetric kind, whole or its lower triangle alone
@@ -89,19 +91,24 @@ impl ContactProblem {
         self.constraint.as_ref().map_or(0, |c| c.obstacle.len())
     }
 
-    /// A x, whichever way A is stored.
-    pub fn product(&self, x: &[f64]) -> Vec<f64> {
-        crate::linalg::product(&self.matrix, self.kind, x)
+    /// A x, whichever way A is stored (a large A on `threads`).
+    pub fn product(&self, x: &[f64], threads: usize) -> Vec<f64> {
+        assert_eq!(
+            self.matrix.ncols(),
+            self.n(),
+            "A is read while the active set holds it (`ContactProblem::take_matrix`)"
+        );
+        crate::linalg::product(&self.matrix, self.kind, x, threads)
     }
 
     /// The strain energy ½ Uᵀ K U and the external work Fᵀ U of the primal
     /// part U of x (the first `n_primal` unknowns; K is A's primal block, so
-    /// the equality multipliers' coupling is left out).
-    pub fn energies(&self, x: &[f64]) -> (f64, f64) {
+    /// the equality multipliers' coupling is left out); K U on `threads`.
+    pub fn energies(&self, x: &[f64], threads: usize) -> (f64, f64) {
         let np = self.n_primal;
         let mut primal = x.to_vec();
         primal[np..].fill(0.0);
-        let ku = self.product(&primal);
+        let ku = self.product(&primal, threads);
         let strain: f64 = 0.5 * (0..np).map(|i| x[i] * ku[i]).sum::<f64>();
         let work: f64 = (0..np).map(|i| x[i] * self.rhs[i]).sum();
         (strain, work)
@@ -113,10 +120,16 @@ impl ContactProblem {
     /// 4838 → 4254 MB).
     pub fn store_lower_triangle(&mut self) {
         if self.kind != MatrixKind::General {
-            let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
-            let whole = std::mem::replace(&mut self.matrix, empty);
+            let whole = self.take_matrix();
             self.matrix = crate::linalg::into_lower_triangle(whole);
         }
+    }
+
+    /// Takes A out, leaving a 0 × 0 matrix: a solve that owns the problem
+    /// builds its own matrix in A's arrays and puts A back at its end.
+    pub(crate) fn take_matrix(&mut self) -> SparseColMat<usize, f64> {
+        let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
+        std::mem::replace(&mut self.matrix, empty)
     }
 }
 
@@ -146,26 +159,31 @@ impl SolverOptions {
 /// Solves a contact problem by the method of `options`; a problem without
 /// constraint is one linear solve, whatever the method. `probes` are
 /// recorded per iteration by the methods that take them (Uzawa). The
-/// kernels run on the linear solver's threads.
+/// kernels run on the linear solver's threads (`LinearOptions::threads`).
+/// The solve owns the problem
+/// and gives it back unchanged with the report: the active set builds its
+/// Newton matrix in A's arrays meanwhile ([`active_set`]).
 pub fn solve(
-    problem: &ContactProblem,
+    problem: ContactProblem,
     options: &SolverOptions,
     probes: &[Probe],
-) -> Result<SolveReport> {
+) -> Result<(ContactProblem, SolveReport)> {
     let linear = options.linear();
     if problem.constraint.is_none() {
-        return uzawa::solve_unconstrained(problem, &linear);
+        let report = uzawa::solve_unconstrained(&problem, &linear)?;
+        return Ok((problem, report));
     }
-    match options {
-        SolverOptions::Uzawa(o) => linear.run(|| {
+    let report = match options {
+        SolverOptions::Uzawa(o) => {
             // One factorisation, reused by every iteration.
-            let (factors, seconds) = factorize_system(problem, Solves::Many, &linear)?;
-            uzawa(problem, factors.as_ref(), seconds, o, probes)
-        }),
-        SolverOptions::UzawaSplit(o) => uzawa_split(problem, o),
-        SolverOptions::DualAccelerated(o) => dual_accelerated(problem, o),
-        SolverOptions::ActiveSet(o) => active_set(problem, o),
-    }
+            let (factors, seconds) = factorize_system(&problem, Solves::Many, &linear)?;
+            uzawa(&problem, factors.as_ref(), seconds, o, probes)
+        }
+        SolverOptions::UzawaSplit(o) => uzawa_split(&problem, o),
+        SolverOptions::DualAccelerated(o) => dual_accelerated(&problem, o),
+        SolverOptions::ActiveSet(o) => return active_set(problem, o),
+    }?;
+    Ok((problem, report))
 }
 
 /// The checked factors of A by the `linear` solver, and the seconds they took.

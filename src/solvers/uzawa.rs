@@ -98,23 +98,23 @@ pub fn uzawa_alpha_of(
     step_form: StepForm,
     linear: &LinearOptions,
 ) -> Result<f64> {
-    linear.run(|| {
-        let (factors, _) = factorize_system(problem, Solves::Many, linear)?;
-        Ok(uzawa_alpha(problem, factors.as_ref(), step, step_form)?.0)
-    })
+    let (factors, _) = factorize_system(problem, Solves::Many, linear)?;
+    Ok(uzawa_alpha(problem, factors.as_ref(), step, step_form)?.0)
 }
 
-/// One linear solve: the problem without contact.
+/// One linear solve: the problem without contact (its measures' product
+/// with A on `threads`).
 pub fn solve_linear(
     problem: &ContactProblem,
     factorization: &dyn Factors,
     factor_seconds: f64,
+    threads: usize,
 ) -> Result<SolveReport> {
     let mut report = ReportBuilder::linear(factor_seconds);
     let mut x = problem.rhs.clone();
     factorization.solve_in_place(&mut x);
     check_finite("linear solve", 1, "solution", &x)?;
-    report.measures = kkt_measures(problem, &x, &[], None);
+    report.measures = kkt_measures(problem, &x, &[], None, threads);
     Ok(report.finish(x, vec![], vec![]))
 }
 
@@ -123,10 +123,8 @@ pub fn solve_unconstrained(
     problem: &ContactProblem,
     linear: &LinearOptions,
 ) -> Result<SolveReport> {
-    linear.run(|| {
-        let (factors, seconds) = factorize_system(problem, Solves::Few, linear)?;
-        solve_linear(problem, factors.as_ref(), seconds)
-    })
+    let (factors, seconds) = factorize_system(problem, Solves::Few, linear)?;
+    solve_linear(problem, factors.as_ref(), seconds, linear.threads)
 }
 
 /// Uzawa with the one factorisation of A (`factor_seconds` spent on it):
@@ -195,7 +193,7 @@ pub fn uzawa(
             ct_lambda: Some(&ct_lambda),
             compliance: Some(&compliance),
         };
-        let measures = kkt_measures_with(problem, &x, &lambda, products);
+        let measures = kkt_measures_with(problem, &x, &lambda, products, options.linear.threads);
         let probe_values: Vec<f64> = probes.iter().map(|p| (p.evaluate)(&x, &lambda)).collect();
         report.record(k, step, measures, &probe_values);
 

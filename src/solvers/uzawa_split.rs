@@ -163,11 +163,6 @@ fn stack_rows(
 
 /// Solves a contact problem by the first splitting (module docs).
 pub fn uzawa_split(problem: &ContactProblem, options: &UzawaSplitOptions) -> Result<SolveReport> {
-    options.linear.run(|| first_splitting(problem, options))
-}
-
-/// [`uzawa_split`] on the linear solver's threads.
-fn first_splitting(problem: &ContactProblem, options: &UzawaSplitOptions) -> Result<SolveReport> {
     let start = Instant::now();
     let (n, np) = (problem.n(), problem.n_primal);
     let n_psi = n - np;
@@ -394,7 +389,7 @@ fn first_splitting(problem: &ContactProblem, options: &UzawaSplitOptions) -> Res
             compliance: Some(&compliance),
             ..Products::default()
         };
-        let measures = kkt_measures_with(problem, &x, &lambda, products);
+        let measures = kkt_measures_with(problem, &x, &lambda, products, options.linear.threads);
         report.record(k, dual_step, measures, &[measures.active as f64, psi_step]);
         if measures.kkt <= options.tol {
             report.stop("kkt");

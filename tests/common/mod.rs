@@ -11,6 +11,8 @@ use obstacle_fem::freefem;
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::mesh::{BoundaryEdge, Mesh};
 use obstacle_fem::output::{AttrValue, ResultFile};
+use obstacle_fem::solvers::active_set::ActiveSetOptions;
+use obstacle_fem::solvers::{ContactProblem, Probe, SolveReport, SolverOptions};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -453,4 +455,23 @@ pub fn parameter(report: &obstacle_fem::solvers::SolveReport, name: &str) -> f64
     report
         .parameter(name)
         .unwrap_or_else(|| panic!("{}: no parameter {name}", report.algorithm))
+}
+
+/// `solvers::solve` of a copy of `problem` (a solve owns the problem it
+/// solves and gives it back): its report.
+pub fn solve(
+    problem: &ContactProblem,
+    options: &SolverOptions,
+    probes: &[Probe],
+) -> obstacle_fem::error::Result<SolveReport> {
+    obstacle_fem::solvers::solve(problem.clone(), options, probes).map(|(_, report)| report)
+}
+
+/// The active set on a copy of `problem`: its report.
+pub fn active_set(
+    problem: &ContactProblem,
+    options: &ActiveSetOptions,
+) -> obstacle_fem::error::Result<SolveReport> {
+    obstacle_fem::solvers::active_set::active_set(problem.clone(), options)
+        .map(|(_, report)| report)
 }

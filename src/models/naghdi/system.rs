@@ -816,7 +816,12 @@ impl ModelSystem for NaghdiSystem<'_> {
         }]
     }
 
-    fn results(&self, problem: &ContactProblem, report: &SolveReport) -> ResultData {
+    fn results(
+        &self,
+        problem: &ContactProblem,
+        report: &SolveReport,
+        threads: usize,
+    ) -> ResultData {
         let full = self.full_coefficients(&report.x);
         let layout = &self.layout;
         let nv = layout.n_vertices;
@@ -887,7 +892,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             attrs.push(("rho", AttrValue::F64(self.rho)));
             attrs.push(("tangency_scale", AttrValue::F64(self.tangency_scale.get())));
         }
-        let (strain_energy, external_work) = problem.energies(&report.x);
+        let (strain_energy, external_work) = problem.energies(&report.x, threads);
         attrs.push(("strain_energy", AttrValue::F64(strain_energy)));
         attrs.push(("external_work", AttrValue::F64(external_work)));
         attrs.push(("u3_min", AttrValue::F64(u3_min)));

@@ -195,16 +195,17 @@ impl ColdStart {
 }
 
 /// Solves a contact problem by the primal–dual active set method (module
-/// docs), its Newton steps by the linear solver of `options.linear`.
-pub fn active_set(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
-    options.linear.run(|| semismooth_newton(problem, options))
-}
-
-/// [`active_set`] on the linear solver's threads.
-fn semismooth_newton(problem: &ContactProblem, options: &ActiveSetOptions) -> Result<SolveReport> {
+/// docs), its Newton steps by the linear solver of `options.linear`. The
+/// solve owns the problem: its Newton matrix is built in A's arrays
+/// ([`NewtonMatrix::lend`]), and A goes back into the problem it returns.
+pub fn active_set(
+    mut problem: ContactProblem,
+    options: &ActiveSetOptions,
+) -> Result<(ContactProblem, SolveReport)> {
     let start = Instant::now();
     let Some(c) = problem.constraint.as_ref() else {
-        return solve_unconstrained(problem, &options.linear);
+        let report = solve_unconstrained(&problem, &options.linear)?;
+        return Ok((problem, report));
     };
     let (n, m) = (problem.n(), c.obstacle.len());
     for (name, len, want) in [
@@ -225,7 +226,7 @@ fn semismooth_newton(problem: &ContactProblem, options: &ActiveSetOptions) -> Re
     }
 
     // c_i: the scalar option, or the Jacobi estimate 1/S̃_ii.
-    let compliance = jacobi_dual_diagonal(problem);
+    let compliance = jacobi_dual_diagonal(&problem);
     let c_rule: Vec<f64> = match options.c {
         Some(v) => vec![v; m],
         None => compliance
@@ -248,8 +249,10 @@ fn semismooth_newton(problem: &ContactProblem, options: &ActiveSetOptions) -> Re
             }
         }
     };
-    let mut newton = NewtonMatrix::of(problem, kind, compliance)?;
-    newton_steps(problem, &mut newton, &c_rule, options, (start, t))
+    let mut newton = NewtonMatrix::lend(&mut problem, kind, compliance, options.linear.threads)?;
+    let report = newton_steps(&problem, &mut newton, &c_rule, options, (start, t))?;
+    newton.give_back(&mut problem);
+    Ok((problem, report))
 }
 
 /// The Newton steps of [`active_set`] on the Newton matrix (A x from
@@ -536,7 +539,7 @@ impl IterateProducts {
             ct_lambda: Some(&self.ct_lambda),
             compliance: Some(&newton.compliance),
         };
-        kkt_measures_with(problem, x, lambda, products)
+        kkt_measures_with(problem, x, lambda, products, newton.threads)
     }
 }
 
