@@ -3,6 +3,7 @@
 //! circle), the P1 prolongation (linear functions, the Galerkin identity)
 //! and the V-cycle (contraction and PCG iterations independent of the
 //! level, the direct solver's answer).
+#![allow(clippy::needless_range_loop)]
 
 mod common;
 
@@ -263,13 +264,13 @@ fn galerkin_operators_are_the_coarse_stiffness_matrices() {
 
 /// Poisson on the unit square, f = 1, u = 0 on the boundary, `levels`
 /// levels above rectangle.geo's 4 × 4 grid: the free prolongations, A, b.
-fn square_poisson(
-    levels: usize,
-) -> (
+type Problem = (
     Vec<SparseColMat<usize, f64>>,
     SparseColMat<usize, f64>,
     Vec<f64>,
-) {
+);
+
+fn square_poisson(levels: usize) -> Problem {
     let h = Hierarchy::detected(gmsh_mesh("rectangle", 4), levels - 1).unwrap();
     let p1 = P1Levels::new(&h, None).unwrap();
     let numbering = &p1.numberings[levels - 1];

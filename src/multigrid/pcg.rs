@@ -49,7 +49,7 @@ pub fn pcg(
             // q = A p (the residual of 0 − A p, negated).
             residual(a, &zero, &p, &mut q);
             let pq = -dot(&p, &q);
-            if !(pq > 0.0) {
+            if pq.is_nan() || pq <= 0.0 {
                 break; // not positive definite, or p = 0
             }
             let alpha = rz / pq;

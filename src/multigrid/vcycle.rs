@@ -177,7 +177,7 @@ impl Multigrid {
             .enumerate()
             .map(|(l, a)| {
                 let diagonal = diagonal(&a);
-                match diagonal.iter().position(|&d| !(d > 0.0)) {
+                match diagonal.iter().position(|&d| d.is_nan() || d <= 0.0) {
                     Some(i) => Err(Error::numerical(
                         STAGE,
                         "diagonal",
