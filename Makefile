@@ -328,3 +328,11 @@ $(PEERS_BENCH)/ball: pipelines/peers/petsc/ball.c | petsc-check
 	$(PETSC_CC) -O2 -Wall $$(pkg-config --cflags PETSc) $< -o $@ $$(pkg-config --libs PETSc) -lm
 peers-bench: petsc-check build $(PEERS_BENCH)/ball
 	bash pipelines/peers/peers-bench.sh $(BIN) $(PEERS_BENCH)/ball $(PEERS_BENCH) $(SIZES)
+
+# Issue 45's linear core: multigrid V-cycles and MG-preconditioned CG beside the
+# direct solver on the P1 Laplacian at N² vertices for each N of MG_SIZES
+# (N − 1 = 8 · 2^k): cycles, contraction, times, peak RSS (docs/solvers.md, "Multigrid").
+.PHONY: multigrid-bench
+MG_SIZES ?= 129 257 513 1025
+multigrid-bench: deps
+	$(CARGO) run --release --example multigrid_bench -- $(MG_SIZES)

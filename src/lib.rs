@@ -27,6 +27,7 @@ pub mod hard;
 pub mod linalg;
 pub mod mesh;
 pub mod models;
+pub mod multigrid;
 pub mod names;
 pub mod numbers;
 pub mod output;

@@ -22,10 +22,12 @@ use std::path::{Path, PathBuf};
 
 mod locate;
 mod msh;
+mod refine;
 mod topology;
 mod validate;
 
 pub use locate::PointLocator;
+pub use refine::{BoundaryGeometry, Circle, Hierarchy};
 use validate::*;
 
 /// A boundary segment read from the mesh file (gmsh line element).
