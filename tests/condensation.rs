@@ -182,21 +182,18 @@ fn iterative_solvers_give_the_same_iterates_condensed() {
 #[test]
 fn threaded_factorisations_give_the_sequential_iterates() {
     let (_, scene, overrides) = PROBLEMS[1];
-    let options = SolverOptions::Uzawa(fixed_uzawa_options(
-        UzawaStep::StabilityFactor(0.5),
-        StepForm::Mean,
-        40,
-    ));
-    let run = |threads: &str, condense: &str| {
+    // The thread count travels in the method's linear options.
+    let run = |threads: usize, condense: &str| {
         let mut sets = overrides.to_vec();
-        sets.extend([threads, condense]);
-        // `assemble` sets this thread's factorisation threads from the scene.
+        sets.push(condense);
         let p = problem(scene, &sets);
-        solve(&p, &options, &[]).unwrap()
+        let mut uzawa = fixed_uzawa_options(UzawaStep::StabilityFactor(0.5), StepForm::Mean, 40);
+        uzawa.linear.threads = threads;
+        solve(&p, &SolverOptions::Uzawa(uzawa), &[]).unwrap()
     };
     for condense in ["solver.condense=true", "solver.condense=false"] {
-        let sequential = run("solver.threads=1", condense);
-        let threaded = run("solver.threads=2", condense);
+        let sequential = run(1, condense);
+        let threaded = run(2, condense);
         let (a, b) = (threaded.alpha.unwrap(), sequential.alpha.unwrap());
         assert!((a - b).abs() <= 1e-10 * b, "{condense}: α {a} vs {b}");
         assert_same(condense, "Uzawa, 2 threads", &threaded, &sequential, 1e-12);
