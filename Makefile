@@ -255,7 +255,7 @@ plane-stress-references:
 # 0.008, 0.0008 (the load ∝ ε): per step the dofs, the estimator, u3 min,
 # the contact area, ∫λ and the strain energy (`obstacle info`), in
 # build/shell-thin-adapt/hypar-mitc-adapt-EPS.md (docs/shell-benchmarks.md,
-# "The thin shell in contact, adaptively"). About 20 minutes, 9 GB at most.
+# "The thin shell in contact, adaptively"). About 25 minutes; 12 GB at most.
 .PHONY: shell-thin-adapt
 THIN_ADAPT := $(BUILD)/shell-thin-adapt
 shell-thin-adapt: build
