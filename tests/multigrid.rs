@@ -243,7 +243,7 @@ fn galerkin_operators_are_the_coarse_stiffness_matrices() {
         let a = p1_stiffness(h.finest(), &levels.numberings[finest]);
         let mg = Multigrid::new(a, levels.prolongations, MultigridOptions::default()).unwrap();
         for l in 0..finest {
-            let galerkin = dense(mg.operator(l));
+            let galerkin = dense(&mg.operator(l));
             let assembled = dense(&p1_stiffness(&h.levels[l], &levels.numberings[l]));
             assert_eq!(galerkin.len(), assembled.len());
             let scale = assembled
