@@ -223,8 +223,8 @@ impl FactorInputs {
 /// (and column) of D A D of max-norm 1, as Ruiz's sweeps aim at. Valid when
 /// no two declared rows share an entry (their d_j would move together).
 /// Measured on the shell's Newton steps at n = 256: Ruiz's three sweeps
-/// over S alone took 0.065 s of a 2.2 s step; with S's scale and the norm
-/// of D S D, five passes over S, now none.
+/// over S alone take 0.065 s of a 2.2 s step; with S's scale and the norm
+/// of D S D they are five passes over S, which keeping the scale saves.
 pub(super) struct KeptScale {
     /// The declared value positions and their rows.
     pub(super) positions: Vec<usize>,

@@ -28,7 +28,7 @@ const BYTES_PER_UNKNOWN: f64 = 5.0e3;
 /// stored and condensed by their lower triangle (docs/work-precision.md,
 /// "Lower-triangle storage"): n = 64, 95,111 unknowns, 265 MB (2.8 KB);
 /// n = 128, 1069 MB (2.8 KB); n = 256, 4778 MB (3.2 KB); n = 512, ≈ 6.03M,
-/// 20157 MB (3.3 KB). Before: 4.5–4.7 KB, and 5.5–5.7 KB before that.
+/// 20157 MB (3.3 KB).
 const CONDENSED_BYTES_PER_UNKNOWN: f64 = 3.6e3;
 
 impl ModelKind for Naghdi {

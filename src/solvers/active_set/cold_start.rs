@@ -190,8 +190,9 @@ pub(super) struct Handover {
 const STEP_TO_BOUNDARY: f64 = 0.95;
 /// Near the solution (relative KKT measure below `LATE_BELOW`) the steps
 /// go nearer the boundary, as the fraction → 1 of the convergence theory:
-/// Newton solves at n = 16, 32, 64, 128, 256 went from 9, 11, 13, 15, 16
-/// to 8, 11, 13, 14, 16 (0.99 alike; from KKT 1e-3 on alike).
+/// Newton solves at n = 16, 32, 64, 128, 256 are 8, 11, 13, 14, 16, against
+/// 9, 11, 13, 15, 16 with the one fraction throughout (0.99 alike; from
+/// KKT 1e-3 on alike).
 const LATE_STEP_TO_BOUNDARY: f64 = 0.995;
 const LATE_BELOW: f64 = 1e-4;
 /// The handover waits for the predicted set to settle ([`settled`]): at
