@@ -46,9 +46,10 @@ pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
 /// triangles depend on the domain, known after meshing).
 pub fn estimate_before_meshing(scene: &Scene) -> Option<Estimate> {
     let n = scene.mesh.n? as f64;
+    let refinements = 4f64.powi(scene.mesh.refine as i32);
     Some(estimate(
         scene,
-        triangles_per_n2(scene.mesh.geo.as_deref()) * n * n,
+        triangles_per_n2(scene.mesh.geo.as_deref()) * n * n * refinements,
     ))
 }
 

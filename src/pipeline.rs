@@ -5,8 +5,9 @@
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::guards;
-use crate::mesh::Mesh;
+use crate::mesh::{Hierarchy, Mesh};
 use crate::models::{self, ExactErrors, FigureData, ModelSystem};
+use crate::multigrid::MultigridOptions;
 use crate::output::transaction::RemoveOnSignal;
 use crate::output::{
     numeric_attr, write_result, AttrValue, Field, Location, OutputTransaction, ResultData,
@@ -15,6 +16,7 @@ use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
 use crate::solvers::dual_accelerated::DualAcceleratedOptions;
+use crate::solvers::multigrid_newton::{MultigridLevels, MultigridNewtonOptions};
 use crate::solvers::spectrum::SpectrumEstimate;
 use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
 use crate::solvers::uzawa_split::UzawaSplitOptions;
@@ -23,6 +25,7 @@ use crate::solvers::{
 };
 use crate::transfer::prolong_dofs;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// What a run reports besides its result file (one row of a study table).
@@ -258,10 +261,18 @@ const PEAK_RSS_PREFIX: &str = "peak_rss_mb_";
 /// (meshing, assembly, solve), so a run's time splits by phase.
 const PHASE_END_PREFIX: &str = "seconds_at_end_of_";
 
-/// The mesh a scene asks for: its `mesh.file`, or gmsh run on its `.geo`
-/// (writing `msh_path`).
+/// The mesh a scene asks for: the finest of [`scene_hierarchy`].
 pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
-    let mesh = match &scene.mesh.file {
+    let mut hierarchy = scene_hierarchy(scene, msh_path)?;
+    Ok(hierarchy.levels.pop().expect("a hierarchy has a level"))
+}
+
+/// The meshes a scene asks for, coarsest first: its `mesh.file`, or gmsh
+/// run on its `.geo` (writing `msh_path`), refined `mesh.refine` times
+/// (the finest then written to `msh_path` in gmsh's place). The memory
+/// guard judges the finest before it is made.
+pub fn scene_hierarchy(scene: &Scene, msh_path: &Path) -> Result<Hierarchy> {
+    let base = match &scene.mesh.file {
         Some(file) => read_mesh_file(&scene.resolve(file))?,
         None => {
             if let Some(e) = guards::estimate_before_meshing(scene) {
@@ -270,10 +281,20 @@ pub fn scene_mesh(scene: &Scene, msh_path: &Path) -> Result<Mesh> {
             gmsh_scene_mesh(scene, msh_path)?
         }
     };
-    guards::check_mesh_scale(&mesh)?;
-    let e = guards::estimate(scene, mesh.n_triangles() as f64);
-    guards::check_memory(scene, &e, &format!("the mesh {}", mesh.source.display()))?;
-    Ok(mesh)
+    let refinements = scene.mesh.refine as usize;
+    let finest_triangles = base.n_triangles() as f64 * 4f64.powi(refinements as i32);
+    let e = guards::estimate(scene, finest_triangles);
+    let what = match refinements {
+        0 => format!("the mesh {}", base.source.display()),
+        k => format!("the mesh {} refined {k} times", base.source.display()),
+    };
+    guards::check_memory(scene, &e, &what)?;
+    let hierarchy = Hierarchy::detected(base, refinements)?;
+    guards::check_mesh_scale(hierarchy.finest())?;
+    if refinements > 0 && scene.mesh.file.is_none() {
+        hierarchy.finest().write_msh(msh_path)?;
+    }
+    Ok(hierarchy)
 }
 
 /// A user's mesh file as MSH 2.2 ASCII, the format the reader and FreeFEM's
@@ -367,6 +388,12 @@ pub struct WarmStart {
     pub lambda: Vec<f64>,
 }
 
+/// The relative KKT tolerance of the multigrid method's coarser levels,
+/// whose solutions start the next level.
+const MULTIGRID_COARSE_TOL: f64 = 1e-6;
+/// CG iterations per Newton step of the multigrid method.
+const MULTIGRID_MAX_CG: usize = 200;
+
 /// The solver options of a scene's `[solver]` table; `start` warm-starts
 /// the methods that take one (active-set: x and λ; dual-accelerated: λ),
 /// `show_progress` draws their progress.
@@ -392,6 +419,21 @@ pub fn solver_options(
             },
             linear,
             ..Default::default()
+        }),
+        Method::Multigrid => SolverOptions::Multigrid(MultigridNewtonOptions {
+            tol: solver.tol,
+            coarse_tol: MULTIGRID_COARSE_TOL,
+            max_iter,
+            max_cg: MULTIGRID_MAX_CG,
+            show_progress,
+            levels: None,
+            cycle: MultigridOptions {
+                coarse: LinearOptions {
+                    threads: 1,
+                    ..linear
+                },
+                ..MultigridOptions::default()
+            },
         }),
         Method::DualAccelerated => SolverOptions::DualAccelerated(DualAcceleratedOptions {
             tol: solver.tol,
@@ -465,13 +507,20 @@ pub fn run_uniform(scene: &Scene, out: &Path, show_progress: bool) -> Result<Run
             ));
         }
     };
-    let mesh = scene_mesh(scene, &msh)?;
+    let hierarchy = scene_hierarchy(scene, &msh)?;
+    let mesh = hierarchy.finest();
     phase_end("meshing");
     let Solved {
         system,
         problem,
         report,
-    } = solve_on(scene, &mesh, Start::Scene, show_progress, &mut phase_end)?;
+    } = solve_on(
+        scene,
+        mesh,
+        Start::Scene(Some(&hierarchy)),
+        show_progress,
+        &mut phase_end,
+    )?;
 
     let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
     // The run's time so far, for tables built later from the file (`study --from-results`).
@@ -480,7 +529,7 @@ pub fn run_uniform(scene: &Scene, out: &Path, show_progress: bool) -> Result<Run
         AttrValue::F64(start.elapsed().as_secs_f64()),
     ));
     data.solver_attrs.extend(phase_ends);
-    write_result(&staged_out, &mesh, &data)?;
+    write_result(&staged_out, mesh, &data)?;
     write_plots(
         scene,
         &staged_out,
@@ -504,8 +553,10 @@ pub fn run_uniform(scene: &Scene, out: &Path, show_progress: bool) -> Result<Run
 /// How a solve on a mesh starts.
 #[derive(Debug, Clone, Copy)]
 pub enum Start<'a> {
-    /// As the scene says: cold, or nested (`solver.nested`).
-    Scene,
+    /// As the scene says: cold, nested (`solver.nested`), or by grid
+    /// sequencing over the scene's hierarchy (`method = "multigrid"`: the
+    /// hierarchy whose finest level is the mesh solved on).
+    Scene(Option<&'a Hierarchy>),
     /// From coefficient vectors carried onto this mesh (`/dofs` names: an
     /// adaptive step's, from the last step's mesh); cold when they do not
     /// fit ([`warm_start`]).
@@ -532,12 +583,27 @@ pub fn solve_on<'m>(
     phase_end: &mut dyn FnMut(&str),
 ) -> Result<Solved<'m>> {
     let (system, problem) = assembled(scene, mesh)?;
+    let levels = match (scene.solver.method, start) {
+        (Method::Multigrid, Start::Scene(Some(h))) if std::ptr::eq(h.finest(), mesh) => {
+            Some(Arc::new(multigrid_levels(scene, h)?))
+        }
+        (Method::Multigrid, _) => {
+            return Err(scene.error(
+                "solver.method",
+                "the multigrid method solves on the hierarchy of mesh.refine, not on an adaptive step's or a nested level's mesh",
+            ))
+        }
+        _ => None,
+    };
     phase_end("assembly");
     let warm = match start {
-        Start::Scene => nested_start(scene, system.as_ref(), &problem)?,
+        Start::Scene(_) => nested_start(scene, system.as_ref(), &problem)?,
         Start::Carried(dofs) => warm_start(system.as_ref(), &problem, dofs)?,
     };
-    let options = solver_options(&scene.solver, scene.model, warm, show_progress);
+    let mut options = solver_options(&scene.solver, scene.model, warm, show_progress);
+    if let SolverOptions::Multigrid(o) = &mut options {
+        o.levels = levels;
+    }
     let (problem, report) = crate::solvers::solve(problem, &options, &system.probes())
         .map_err(|e| guards::name_matrix_inputs(scene, e))?;
     phase_end("solve");
@@ -545,6 +611,25 @@ pub fn solve_on<'m>(
         system,
         problem,
         report,
+    })
+}
+
+/// The problems of a hierarchy's coarser levels (the scene's model on each
+/// mesh, without the exact solution's checks: their solutions are starts)
+/// and the model's prolongations between the levels.
+fn multigrid_levels(scene: &Scene, hierarchy: &Hierarchy) -> Result<MultigridLevels> {
+    let mut coarse = scene.clone();
+    coarse.output.errors = false;
+    let finest = hierarchy.n_levels() - 1;
+    let coarser = hierarchy.levels[..finest]
+        .iter()
+        .map(|mesh| Ok(assembled(&coarse, mesh)?.1))
+        .collect::<Result<Vec<_>>>()?;
+    let transfers = models::kind(scene.model).skeleton_transfers(hierarchy, scene)?;
+    Ok(MultigridLevels {
+        coarser,
+        prolongations: transfers.prolongations,
+        lifts: transfers.lifts,
     })
 }
 
@@ -603,7 +688,13 @@ fn nested_start(
     // (checked at every point of a degree-10 rule, then integrated) serve no one.
     coarse.output.errors = false;
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
-    let solved = solve_on(&coarse, &coarse_mesh, Start::Scene, false, &mut |_| {})?;
+    let solved = solve_on(
+        &coarse,
+        &coarse_mesh,
+        Start::Scene(None),
+        false,
+        &mut |_| {},
+    )?;
     if solved.report.lambda.iter().all(|&l| l <= 0.0) {
         return Ok(None);
     }

@@ -1,4 +1,5 @@
-//! The MSH 2.2 ASCII reader: `Mesh::read_msh` and its parser.
+//! MSH 2.2 ASCII: the reader (`Mesh::read_msh` and its parser) and the
+//! writer (`Mesh::write_msh`, for meshes made here: `mesh.refine`).
 
 use super::*;
 
@@ -27,6 +28,69 @@ impl Mesh {
             path.to_path_buf(),
             &labels,
         )
+    }
+}
+
+impl Mesh {
+    /// Writes the mesh as MSH 2.2 ASCII, as gmsh does for the repository's
+    /// geometries: the boundary edges as lines with their tags, the
+    /// triangles with the surface's tag (the one named tag no boundary edge
+    /// carries; 0 without one), the names in `$PhysicalNames`.
+    /// [`Mesh::read_msh`] reads back the same mesh.
+    pub fn write_msh(&self, path: &Path) -> Result<()> {
+        use std::io::Write;
+        let error = |e: std::io::Error| Error::mesh(path, format!("cannot write the mesh: {e}"));
+        let file = std::fs::File::create(path).map_err(error)?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
+        let boundary_tags: std::collections::BTreeSet<i32> =
+            self.boundary_edges.iter().map(|e| e.tag).collect();
+        let surfaces: Vec<i32> = self
+            .physical_names
+            .keys()
+            .copied()
+            .filter(|t| !boundary_tags.contains(t))
+            .collect();
+        let surface = match surfaces[..] {
+            [t] => t,
+            _ => 0,
+        };
+        // Streamed: the text of a large mesh is never held whole.
+        let mut write = || -> std::io::Result<()> {
+            writeln!(w, "$MeshFormat\n2.2 0 8\n$EndMeshFormat")?;
+            if !self.physical_names.is_empty() {
+                writeln!(w, "$PhysicalNames\n{}", self.physical_names.len())?;
+                for (tag, name) in &self.physical_names {
+                    let dim = if boundary_tags.contains(tag) { 1 } else { 2 };
+                    writeln!(w, "{dim} {tag} \"{name}\"")?;
+                }
+                writeln!(w, "$EndPhysicalNames")?;
+            }
+            writeln!(w, "$Nodes\n{}", self.n_vertices())?;
+            for (i, [x, y]) in self.vertices.iter().enumerate() {
+                writeln!(w, "{} {x:?} {y:?} 0", i + 1)?;
+            }
+            writeln!(w, "$EndNodes")?;
+            let n_elements = self.boundary_edges.len() + self.n_triangles();
+            writeln!(w, "$Elements\n{n_elements}")?;
+            for (k, e) in self.boundary_edges.iter().enumerate() {
+                let [a, b] = e.vertices;
+                writeln!(w, "{} 1 2 {} {} {} {}", k + 1, e.tag, e.tag, a + 1, b + 1)?;
+            }
+            let offset = self.boundary_edges.len() + 1;
+            for (k, [a, b, c]) in self.triangles.iter().enumerate() {
+                writeln!(
+                    w,
+                    "{} 2 2 {surface} {surface} {} {} {}",
+                    k + offset,
+                    a + 1,
+                    b + 1,
+                    c + 1
+                )?;
+            }
+            writeln!(w, "$EndElements")?;
+            w.flush()
+        };
+        write().map_err(error)
     }
 }
 

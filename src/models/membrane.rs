@@ -10,6 +10,7 @@ use super::exact::RadialObstacle;
 use super::{
     check_obstacle_against_boundary_values, contact_fields, multiplier_field, named_boundary_tags,
     named_dofs, vertex_field, BoundaryValues, ExactErrors, FreefemTwin, ModelKind, ModelSystem,
+    SkeletonTransfers,
 };
 use crate::assembly::{
     assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
@@ -17,7 +18,8 @@ use crate::assembly::{
 };
 use crate::error::{Error, Result};
 use crate::linalg::MatrixKind;
-use crate::mesh::Mesh;
+use crate::mesh::{Hierarchy, Mesh};
+use crate::multigrid::P1Levels;
 use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
 use crate::scene::{ColdStartSpec, ElementPair, ExactSpec, Expression, ObstacleSpec, Scene};
@@ -66,6 +68,40 @@ impl ModelKind for Membrane {
 
     fn freefem_twin(&self, _element: ElementPair) -> Option<FreefemTwin> {
         Some(FreefemTwin::Membrane)
+    }
+
+    /// P1 interpolation on the free vertices: the skeleton of P1⊕B3 (its
+    /// bubbles are the interior groups), numbered as `DofNumbering` numbers
+    /// the free vertices.
+    fn skeleton_transfers(
+        &self,
+        hierarchy: &Hierarchy,
+        scene: &Scene,
+    ) -> Result<SkeletonTransfers> {
+        if scene.element != ElementPair::P1bP0 {
+            return Err(scene.error(
+                "solver.method",
+                format!(
+                    "multigrid prolongs the P1 skeleton of p1b-p0, not element = \"{}\"",
+                    scene.element.name()
+                ),
+            ));
+        }
+        let tags = named_boundary_tags(
+            hierarchy.finest(),
+            scene,
+            "mesh.dirichlet",
+            scene.mesh.dirichlet.as_deref(),
+        )?;
+        let levels = P1Levels::new(hierarchy, tags.as_deref())?;
+        let lifts = match &scene.mesh.dirichlet_value {
+            Some(g_d) => levels.lifts(hierarchy, |x| g_d.eval(x)),
+            None => levels.lifts(hierarchy, |_| 0.0),
+        };
+        Ok(SkeletonTransfers {
+            prolongations: levels.prolongations,
+            lifts,
+        })
     }
 }
 

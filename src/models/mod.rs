@@ -9,13 +9,14 @@ pub mod membrane;
 pub mod naghdi;
 
 use crate::error::{Error, Result};
-use crate::mesh::Mesh;
+use crate::mesh::{Hierarchy, Mesh};
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::plot;
 use crate::scene::{ColdStartSpec, ElementPair, Model, PlotKind, Scene};
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::Element;
+use faer::sparse::SparseColMat;
 use std::path::Path;
 
 /// What the stages around a model know of it before and beside its
@@ -47,6 +48,32 @@ pub trait ModelKind {
     /// The FreeFEM script that solves the model's scene with `element`
     /// too (`obstacle freefem`); None: the model has no twin.
     fn freefem_twin(&self, element: ElementPair) -> Option<FreefemTwin>;
+    /// The prolongations between consecutive levels of `hierarchy` on the
+    /// unknowns a multigrid smooths (the skeleton: the problem's unknowns
+    /// outside its interior groups), coarsest first, with what the boundary
+    /// values add to each; an error naming the scene key where the model
+    /// has none.
+    fn skeleton_transfers(
+        &self,
+        _hierarchy: &Hierarchy,
+        scene: &Scene,
+    ) -> Result<SkeletonTransfers> {
+        Err(scene.error(
+            "solver.method",
+            format!(
+                "the model \"{}\" has no multigrid prolongations",
+                scene.model.name()
+            ),
+        ))
+    }
+}
+
+/// Prolongations between the skeletons of consecutive levels, coarsest
+/// first: level l + 1's interpolant of level l's u is
+/// `prolongations[l] u + lifts[l]` (the lift: the boundary values' part).
+pub struct SkeletonTransfers {
+    pub prolongations: Vec<SparseColMat<usize, f64>>,
+    pub lifts: Vec<Vec<f64>>,
 }
 
 /// The FreeFEM twins of the models (freefem/*.edp; src/freefem.rs runs them).

@@ -106,6 +106,37 @@ impl P1Levels {
     }
 }
 
+impl P1Levels {
+    /// What the boundary values g_D of each level add to the P1 interpolant
+    /// on the next level's free vertices: `lifts[l][i]` is Σ_j ½ g_D(x_j)
+    /// over the fixed end points j of the coarse edge whose midpoint is the
+    /// free vertex i of level l + 1 (0 elsewhere). The interpolant of a
+    /// whole function (free values u, fixed values g_D) is then P u + lift.
+    pub fn lifts(&self, hierarchy: &Hierarchy, g_d: impl Fn([f64; 2]) -> f64) -> Vec<Vec<f64>> {
+        hierarchy
+            .levels
+            .windows(2)
+            .zip(self.numberings.windows(2))
+            .map(|(m, d)| {
+                let (coarse, (coarse_free, fine_free)) = (&m[0], (&d[0], &d[1]));
+                let n = coarse.n_vertices();
+                let mut lift = vec![0.0; fine_free.n_free()];
+                for (e, ends) in coarse.edges.iter().enumerate() {
+                    let Some(i) = fine_free.free_index[n + e] else {
+                        continue;
+                    };
+                    for &v in ends {
+                        if coarse_free.free_index[v].is_none() {
+                            lift[i] += 0.5 * g_d(coarse.vertices[v]);
+                        }
+                    }
+                }
+                lift
+            })
+            .collect()
+    }
+}
+
 /// The P1 stiffness matrix ∫ ∇u·∇v of `mesh` on the free vertices of
 /// `numbering` (Dirichlet vertices eliminated, as the membrane's K), whole.
 pub fn p1_stiffness(mesh: &Mesh, numbering: &DofNumbering) -> SparseColMat<usize, f64> {

@@ -6,6 +6,7 @@
 //! The matrices are stored whole (both triangles) in compressed columns:
 //! Gauss–Seidel reads row i of a symmetric A as its column i.
 
+use super::pcg::{pcg, CgReport};
 use crate::error::{Error, Result};
 use crate::linalg::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
@@ -260,6 +261,85 @@ impl Multigrid {
     /// The finest level's matrix (the one given).
     pub fn matrix(&self) -> &SparseColMat<usize, f64> {
         &self.given
+    }
+
+    /// The finest level's sweep order: `order[k]` is the given matrix's
+    /// unknown at sweep position k (the numbering of [`Multigrid::add_to_level`],
+    /// [`Multigrid::pcg_swept`] and [`Multigrid::prolongation_swept`]).
+    pub fn finest_order(&self) -> &[usize] {
+        &self.levels[self.levels.len() - 1].order
+    }
+
+    /// Prolongation l (level l to l + 1), rows and columns in the levels'
+    /// sweep numbering.
+    pub fn prolongation_swept(&self, l: usize) -> &SparseColMat<usize, f64> {
+        &self.prolongations[l]
+    }
+
+    /// Adds v to entry (i, j) of level l's operator, both in the level's
+    /// sweep numbering; false where (i, j) lies outside its pattern. The
+    /// given matrix ([`Multigrid::matrix`]) stays as given; call
+    /// [`Multigrid::operators_changed`] before the next cycle.
+    pub fn add_to_level(&mut self, l: usize, i: usize, j: usize, v: f64) -> bool {
+        let a = &mut self.levels[l].a;
+        let range = a.symbolic().col_range(j);
+        let found = a.symbolic().row_idx()[range.clone()].binary_search(&i);
+        match found {
+            Ok(k) => {
+                a.val_mut()[range.start + k] += v;
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// After [`Multigrid::add_to_level`]: every level's diagonal read again
+    /// (checked positive) and the coarsest level factorised anew.
+    pub fn operators_changed(&mut self) -> Result<()> {
+        for (l, level) in self.levels.iter_mut().enumerate() {
+            level.diagonal = diagonal(&level.a);
+            if let Some(i) = level.diagonal.iter().position(|&d| d.is_nan() || d <= 0.0) {
+                return Err(Error::numerical(
+                    STAGE,
+                    "diagonal",
+                    format!(
+                        "level {l}: A[{i}, {i}] = {} is not positive",
+                        level.diagonal[i]
+                    ),
+                ));
+            }
+        }
+        if self.levels[0].a.nrows() > 0 {
+            self.coarsest = Some(factor_once(
+                SystemPattern {
+                    matrix: &self.levels[0].a,
+                    kind: MatrixKind::SymmetricPositiveDefinite,
+                    solves: Solves::Many,
+                    interior: None,
+                    what: "multigrid coarsest level",
+                },
+                &self.options.coarse,
+            )?);
+        }
+        Ok(())
+    }
+
+    /// Conjugate gradients on the finest level's operator as stored (the
+    /// terms of [`Multigrid::add_to_level`] included), preconditioned by one
+    /// V-cycle; b and x in the finest level's sweep numbering.
+    pub fn pcg_swept(&self, b: &[f64], x: &mut [f64], rtol: f64, max_iter: usize) -> CgReport {
+        let finest = self.levels.len() - 1;
+        pcg(
+            &self.levels[finest].a,
+            b,
+            x,
+            |r, z| {
+                z.fill(0.0);
+                self.cycle_at(finest, r, z);
+            },
+            rtol,
+            max_iter,
+        )
     }
 
     /// One V-cycle on A x = b from the given x.

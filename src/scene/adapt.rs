@@ -70,6 +70,12 @@ impl Scene {
                 "the adaptive loop warm-starts each step from the previous one; drop `solver.nested`",
             ));
         }
+        if self.solver.method == super::Method::Multigrid {
+            return Err(self.error(
+                "adapt",
+                "the adaptive loop's meshes are no uniform refinements of one another: the multigrid method needs mesh.refine's hierarchy (choose another method)",
+            ));
+        }
         Ok(())
     }
 }

@@ -16,6 +16,12 @@ pub struct MeshSpec {
     pub h: Option<f64>,
     /// An existing MSH 2.2 file (relative to the scene file's folder) instead of meshing.
     pub file: Option<String>,
+    /// Uniform refinements of the mesh (`geo` or `file`): each splits every
+    /// triangle in four, new boundary vertices placed on the circles the
+    /// boundary parts lie on (src/mesh/refine.rs). The run's mesh is the
+    /// last; `method = "multigrid"` solves on all of them. Default 0.
+    #[serde(default)]
+    pub refine: i64,
     /// Physical names of the boundary parts where the Dirichlet condition holds
     /// (default: the whole boundary).
     pub dirichlet: Option<Vec<String>>,
@@ -58,6 +64,15 @@ impl Scene {
             if !(1..=100_000).contains(&n) {
                 return Err(self.error("mesh.n", format!("must be between 1 and 100000, got {n}")));
             }
+        }
+        if !(0..=12).contains(&m.refine) {
+            return Err(self.error(
+                "mesh.refine",
+                format!(
+                    "must be between 0 and 12 (each refinement quadruples the triangles), got {}",
+                    m.refine
+                ),
+            ));
         }
         if let Some(h) = m.h {
             self.check_positive("mesh.h", h)?;

@@ -111,6 +111,9 @@ pub enum Method {
     /// Primal–dual active set (semismooth Newton): the exact discrete solution
     /// in few linear solves.
     ActiveSet,
+    /// Newton multigrid with grid sequencing on the meshes of `mesh.refine`
+    /// (the P1⊕B3–P0 membrane; src/solvers/multigrid_newton.rs).
+    Multigrid,
 }
 
 impl Method {
@@ -120,6 +123,7 @@ impl Method {
             Method::UzawaSplit => "uzawa-split",
             Method::DualAccelerated => "dual-accelerated",
             Method::ActiveSet => "active-set",
+            Method::Multigrid => "multigrid",
         }
     }
 }
@@ -250,6 +254,24 @@ impl Scene {
                 return Err(self.error(
                     "solver.nested",
                     "nested iteration needs a structured gmsh mesh (`mesh.geo` with `mesh.n`)",
+                ));
+            }
+        }
+        if s.method == Method::Multigrid {
+            if self.model != super::Model::Membrane || self.element != super::ElementPair::P1bP0 {
+                return Err(self.error(
+                    "solver.method",
+                    format!(
+                        "the multigrid method solves the membrane with element = \"p1b-p0\" (its constraint rows act through the bubbles it condenses), not model = \"{}\" with element = \"{}\"",
+                        self.model.name(),
+                        self.element.name()
+                    ),
+                ));
+            }
+            if self.mesh.refine < 1 {
+                return Err(self.error(
+                    "solver.method",
+                    "the multigrid method needs a hierarchy: set mesh.refine ≥ 1 (the scene's mesh refined that many times; e.g. mesh.n = 4 with mesh.refine = 8 on meshes/rectangle.geo gives 1025² vertices)",
                 ));
             }
         }

@@ -17,6 +17,7 @@ pub mod active_set;
 pub mod dual_accelerated;
 pub mod measures;
 mod monitor;
+pub mod multigrid_newton;
 pub mod spectrum;
 pub mod uzawa;
 pub mod uzawa_split;
@@ -27,6 +28,7 @@ use crate::progress::IterationProgress;
 use active_set::{active_set, ActiveSetOptions};
 use dual_accelerated::{dual_accelerated, DualAcceleratedOptions};
 use faer::sparse::SparseColMat;
+use multigrid_newton::{multigrid_newton, MultigridNewtonOptions};
 use serde::Deserialize;
 use spectrum::SpectrumEstimate;
 use std::time::Instant;
@@ -142,6 +144,8 @@ pub enum SolverOptions {
     UzawaSplit(UzawaSplitOptions),
     DualAccelerated(DualAcceleratedOptions),
     ActiveSet(ActiveSetOptions),
+    /// Newton multigrid with grid sequencing over a nested hierarchy.
+    Multigrid(MultigridNewtonOptions),
 }
 
 impl SolverOptions {
@@ -152,6 +156,7 @@ impl SolverOptions {
             SolverOptions::UzawaSplit(o) => o.linear,
             SolverOptions::DualAccelerated(o) => o.linear,
             SolverOptions::ActiveSet(o) => o.linear,
+            SolverOptions::Multigrid(o) => o.cycle.coarse,
         }
     }
 }
@@ -182,6 +187,7 @@ pub fn solve(
         SolverOptions::UzawaSplit(o) => uzawa_split(&problem, o),
         SolverOptions::DualAccelerated(o) => dual_accelerated(&problem, o),
         SolverOptions::ActiveSet(o) => return active_set(problem, o),
+        SolverOptions::Multigrid(o) => multigrid_newton(&problem, o),
     }?;
     Ok((problem, report))
 }

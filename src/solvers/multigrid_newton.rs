@@ -1,0 +1,780 @@
+//! Newton multigrid with grid sequencing (`method = "multigrid"`) for
+//! contact problems whose every constraint row acts through one interior
+//! unknown of its own: the P1⊕B3–P0 membrane, one- or two-sided
+//! (docs/formulation.md §3.3, "Newton multigrid").
+//!
+//! **Condensation.** The unknowns split into the skeleton u (outside the
+//! interior groups) and one interior unknown b per group (an element's
+//! bubble), which A couples to nothing (∫_T ∇b·∇φ = 0 for the P1 functions
+//! φ): A = diag(K, D). Row i of the constraint reads c_iᵀu + β_i b ≥ g_i
+//! with b its row's interior unknown and β_i ≠ 0. For a given u each b
+//! minimises ½ d b² − f b between its bounds, so b = clamp(f/d, lo, hi) with
+//! lo the largest (g_i − c_iᵀu)/β_i over its rows with β_i > 0 and hi the
+//! smallest over those with β_i < 0. What remains is the convex, C¹,
+//! piecewise quadratic
+//!
+//! ```text
+//!     J(u) = ½ uᵀK u − Fᵀu + Σ_b (½ d b² − f b),   ∇J = K u − F − Σ_i λ_i c_i,
+//! ```
+//!
+//! with λ_i = (d b − f)/β_i ≥ 0 on the row whose bound the clamp takes (0
+//! on the others), and the generalised Hessian H = K + Σ_active (d/β_i²)
+//! c_i c_iᵀ, symmetric positive definite. Every KKT measure but
+//! stationarity holds by construction of (b, λ): ∇J = 0 is the discrete
+//! KKT point, and the solve stops on the same relative KKT measure as the
+//! other methods (`solvers::measures`), computed on the whole problem.
+//!
+//! **Newton.** Semismooth Newton on J with Armijo backtracking. Each step's
+//! H δ = −∇J is solved by conjugate gradients preconditioned by one
+//! V-cycle (`multigrid::Multigrid`) whose level operators are the Galerkin
+//! operators of H: K's, set up once per level, plus each active row's
+//! rank-one term restricted through the prolongations. On nested P1 meshes
+//! the restriction of c_i stays on the vertices of the triangle's ancestor,
+//! inside K's pattern at every level; a step adds or removes the terms of
+//! the rows whose activity changed only. CG stops at the relative residual
+//! η = max(min(0.1, kkt), 0.1 tol/kkt): loose while the active set moves,
+//! as tight as the tolerance needs at the end.
+//!
+//! **Grid sequencing.** The levels' own problems (each assembled on its mesh
+//! of the hierarchy) are solved from the coarsest, each from the
+//! prolongation of the previous level's u, the coarser ones to
+//! `coarse_tol`, the given problem to `tol`.
+
+use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, Products};
+use super::monitor::{check_finite, Monitor};
+use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
+use crate::assembly::Triplets;
+use crate::error::{Error, Result};
+use crate::linalg::{mat_vec, MatrixKind};
+use crate::multigrid::{Multigrid, MultigridOptions};
+use faer::sparse::SparseColMat;
+use std::sync::Arc;
+use std::time::Instant;
+
+const STAGE: &str = "multigrid";
+const NONE: usize = usize::MAX;
+
+/// The coarser levels of a nested hierarchy, as the pipeline assembles them.
+pub struct MultigridLevels {
+    /// The problems of the coarser levels, coarsest first, each assembled
+    /// on its own mesh of the hierarchy.
+    pub coarser: Vec<ContactProblem>,
+    /// `prolongations[l]`: level l's skeleton unknowns to level l + 1's (the
+    /// last one into the solved problem's), in the problems' numbering of
+    /// their skeletons (their unknowns outside the interior groups, in order).
+    pub prolongations: Vec<SparseColMat<usize, f64>>,
+    /// `lifts[l]`: what the boundary values add to `prolongations[l] u` (the
+    /// start of level l + 1 is the interpolant of level l's whole solution).
+    pub lifts: Vec<Vec<f64>>,
+}
+
+impl std::fmt::Debug for MultigridLevels {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let sizes: Vec<usize> = self.coarser.iter().map(ContactProblem::n).collect();
+        f.debug_struct("MultigridLevels")
+            .field("coarser_unknowns", &sizes)
+            .finish()
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct MultigridNewtonOptions {
+    /// Relative KKT tolerance of the given (finest) problem.
+    pub tol: f64,
+    /// Relative KKT tolerance of the coarser levels, whose solutions are
+    /// starts (never below `tol`).
+    pub coarse_tol: f64,
+    /// Newton steps per level.
+    pub max_iter: usize,
+    /// CG iterations per Newton step.
+    pub max_cg: usize,
+    pub show_progress: bool,
+    /// The hierarchy's coarser levels; the pipeline sets them (None: an
+    /// error naming what is missing).
+    pub levels: Option<Arc<MultigridLevels>>,
+    pub cycle: MultigridOptions,
+}
+
+/// A problem condensed to its skeleton (module docs).
+struct Condensed {
+    /// The problem's unknown of skeleton unknown k.
+    skeleton: Vec<usize>,
+    /// F on the skeleton.
+    load: Vec<f64>,
+    /// Per interior unknown: its index in the problem, d = A_bb, f = F_b.
+    interior: Vec<usize>,
+    d: Vec<f64>,
+    f: Vec<f64>,
+    /// Per row: β_i, g_i and c_i (compressed rows on the skeleton).
+    beta: Vec<f64>,
+    g: Vec<f64>,
+    row_ptr: Vec<usize>,
+    row_cols: Vec<usize>,
+    row_vals: Vec<f64>,
+    /// Per interior unknown: its rows (compressed).
+    rows_ptr: Vec<usize>,
+    rows: Vec<usize>,
+}
+
+/// A skeleton iterate's interior values and active rows.
+struct Clamped {
+    b: Vec<f64>,
+    /// Per interior unknown: the row whose bound it sits on, or NONE.
+    active: Vec<usize>,
+    /// Σ_b (½ d b² − f b).
+    energy: f64,
+}
+
+impl Condensed {
+    /// The condensation of `problem`, or an error naming what does not fit:
+    /// equality multipliers, an interior group of more than one unknown, an
+    /// interior unknown coupled to another, a row without (or with two)
+    /// interior unknowns. With it K, the skeleton block of A (both triangles).
+    fn of(problem: &ContactProblem) -> Result<(Self, SparseColMat<usize, f64>)> {
+        let refuse = |reason: String| {
+            Error::numerical(
+                STAGE,
+                "structure",
+                format!("{reason}: the multigrid method needs every constraint row to act through one interior unknown of its own that A couples to nothing (the P1⊕B3–P0 membrane)"),
+            )
+        };
+        let c = problem
+            .constraint
+            .as_ref()
+            .ok_or_else(|| refuse("the problem has no constraint".into()))?;
+        if problem.n_primal != problem.n() {
+            return Err(refuse("the problem has equality multipliers".into()));
+        }
+        if problem.kind != MatrixKind::SymmetricPositiveDefinite {
+            return Err(refuse(format!("A is {}", problem.kind.describe())));
+        }
+        let n = problem.n();
+        let groups = problem
+            .interior
+            .as_ref()
+            .ok_or_else(|| refuse("the problem declares no interior unknowns".into()))?;
+        let mut interior_of = vec![NONE; n];
+        let mut interior = Vec::with_capacity(groups.len());
+        for g in 0..groups.len() {
+            match groups.group(g) {
+                [i] => {
+                    interior_of[*i] = interior.len();
+                    interior.push(*i);
+                }
+                group => {
+                    return Err(refuse(format!(
+                        "interior group {g} has {} unknowns",
+                        group.len()
+                    )))
+                }
+            }
+        }
+        let skeleton: Vec<usize> = (0..n).filter(|&i| interior_of[i] == NONE).collect();
+        let mut skeleton_of = vec![NONE; n];
+        for (k, &i) in skeleton.iter().enumerate() {
+            skeleton_of[i] = k;
+        }
+        // A's lower triangle (whichever way it is stored), mirrored.
+        let a = &problem.matrix;
+        let mut d = vec![0.0; interior.len()];
+        let mut k = Triplets::new(skeleton.len(), skeleton.len());
+        let mut couplings = Vec::new();
+        for j in 0..n {
+            let range = a.symbolic().col_range(j);
+            for (&i, &v) in a.symbolic().row_idx()[range.clone()]
+                .iter()
+                .zip(&a.val()[range])
+            {
+                if i < j {
+                    continue;
+                }
+                match (skeleton_of[i], skeleton_of[j]) {
+                    (NONE, NONE) if i == j => d[interior_of[i]] = v,
+                    (NONE, NONE) if v != 0.0 => {
+                        return Err(refuse(format!(
+                            "the interior unknowns {i} and {j} are coupled (A = {v:e})"
+                        )))
+                    }
+                    (NONE, NONE) => {}
+                    (si, sj) if si != NONE && sj != NONE => {
+                        k.push(si, sj, v);
+                        if si != sj {
+                            k.push(sj, si, v);
+                        }
+                    }
+                    _ => couplings.push((i, j, v)),
+                }
+            }
+        }
+        let k = k.into_sparse();
+        let diagonal = |i: usize| match skeleton_of[i] {
+            NONE => d[interior_of[i]],
+            s => k
+                .symbolic()
+                .row_idx_of_col(s)
+                .zip(k.val_of_col(s))
+                .find(|(r, _)| *r == s)
+                .map_or(0.0, |(_, v)| *v),
+        };
+        if let Some(&(i, j, v)) = couplings
+            .iter()
+            .find(|(i, j, v)| v.abs() > 1e-10 * (diagonal(*i) * diagonal(*j)).abs().sqrt())
+        {
+            return Err(refuse(format!(
+                "the interior unknown {} couples to the unknown {} (A = {v:e})",
+                if skeleton_of[i] == NONE { i } else { j },
+                if skeleton_of[i] == NONE { j } else { i },
+            )));
+        }
+        if let Some(b) = d.iter().position(|&v| v.is_nan() || v <= 0.0) {
+            return Err(refuse(format!(
+                "the interior unknown {} has the diagonal {:e}",
+                interior[b], d[b]
+            )));
+        }
+        // C row by row: its interior unknown and β, and c on the skeleton.
+        let m = c.obstacle.len();
+        let mut row_interior = vec![NONE; m];
+        let mut beta = vec![0.0; m];
+        let mut row_ptr = vec![0usize; m + 1];
+        let cm = &c.matrix;
+        for j in 0..n {
+            let range = cm.symbolic().col_range(j);
+            for (&i, &v) in cm.symbolic().row_idx()[range.clone()]
+                .iter()
+                .zip(&cm.val()[range])
+            {
+                if v == 0.0 {
+                    continue;
+                }
+                match interior_of[j] {
+                    NONE => row_ptr[i + 1] += 1,
+                    _ if row_interior[i] != NONE => {
+                        return Err(refuse(format!(
+                            "constraint row {i} acts on two interior unknowns"
+                        )))
+                    }
+                    b => {
+                        row_interior[i] = b;
+                        beta[i] = v;
+                    }
+                }
+            }
+        }
+        if let Some(i) = row_interior.iter().position(|&b| b == NONE) {
+            return Err(refuse(format!(
+                "constraint row {i} acts on no interior unknown"
+            )));
+        }
+        for i in 0..m {
+            row_ptr[i + 1] += row_ptr[i];
+        }
+        let mut next = row_ptr.clone();
+        let mut row_cols = vec![0usize; row_ptr[m]];
+        let mut row_vals = vec![0.0; row_ptr[m]];
+        for j in 0..n {
+            if interior_of[j] != NONE {
+                continue;
+            }
+            let range = cm.symbolic().col_range(j);
+            for (&i, &v) in cm.symbolic().row_idx()[range.clone()]
+                .iter()
+                .zip(&cm.val()[range])
+            {
+                if v != 0.0 {
+                    row_cols[next[i]] = skeleton_of[j];
+                    row_vals[next[i]] = v;
+                    next[i] += 1;
+                }
+            }
+        }
+        let nb = interior.len();
+        let mut rows_ptr = vec![0usize; nb + 1];
+        for &b in &row_interior {
+            rows_ptr[b + 1] += 1;
+        }
+        for b in 0..nb {
+            rows_ptr[b + 1] += rows_ptr[b];
+        }
+        let mut next = rows_ptr.clone();
+        let mut rows = vec![0usize; m];
+        for (i, &b) in row_interior.iter().enumerate() {
+            rows[next[b]] = i;
+            next[b] += 1;
+        }
+        let condensed = Condensed {
+            load: skeleton.iter().map(|&i| problem.rhs[i]).collect(),
+            f: interior.iter().map(|&i| problem.rhs[i]).collect(),
+            skeleton,
+            interior,
+            d,
+            beta,
+            g: c.obstacle.clone(),
+            row_ptr,
+            row_cols,
+            row_vals,
+            rows_ptr,
+            rows,
+        };
+        Ok((condensed, k))
+    }
+
+    fn n_skeleton(&self) -> usize {
+        self.skeleton.len()
+    }
+
+    /// c_iᵀ u.
+    fn row_product(&self, i: usize, u: &[f64]) -> f64 {
+        (self.row_ptr[i]..self.row_ptr[i + 1])
+            .map(|k| self.row_vals[k] * u[self.row_cols[k]])
+            .sum()
+    }
+
+    /// Each interior unknown clamped between the bounds u gives it.
+    fn clamp(&self, u: &[f64]) -> Clamped {
+        let nb = self.interior.len();
+        let (mut b, mut active, mut energy) = (vec![0.0; nb], vec![NONE; nb], 0.0);
+        for j in 0..nb {
+            let (mut lo, mut lo_row) = (f64::NEG_INFINITY, NONE);
+            let (mut hi, mut hi_row) = (f64::INFINITY, NONE);
+            for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
+                let bound = (self.g[i] - self.row_product(i, u)) / self.beta[i];
+                if self.beta[i] > 0.0 && bound > lo {
+                    (lo, lo_row) = (bound, i);
+                } else if self.beta[i] < 0.0 && bound < hi {
+                    (hi, hi_row) = (bound, i);
+                }
+            }
+            let free = self.f[j] / self.d[j];
+            (b[j], active[j]) = if free < lo {
+                (lo, lo_row)
+            } else if free > hi {
+                (hi, hi_row)
+            } else {
+                (free, NONE)
+            };
+            energy += 0.5 * self.d[j] * b[j] * b[j] - self.f[j] * b[j];
+        }
+        Clamped { b, active, energy }
+    }
+
+    /// λ_i of every row: (d b − f)/β_i on the active rows, 0 elsewhere.
+    fn multipliers(&self, clamped: &Clamped) -> Vec<f64> {
+        let mut lambda = vec![0.0; self.g.len()];
+        for (j, &i) in clamped.active.iter().enumerate() {
+            if i != NONE {
+                lambda[i] = (self.d[j] * clamped.b[j] - self.f[j]) / self.beta[i];
+            }
+        }
+        lambda
+    }
+
+    /// J(u), the size of its terms (the scale of its round-off) and ∇J(u)
+    /// (module docs).
+    fn energy_and_gradient(
+        &self,
+        k: &SparseColMat<usize, f64>,
+        u: &[f64],
+        clamped: &Clamped,
+    ) -> (f64, f64, Vec<f64>) {
+        let mut gradient = mat_vec(k, u);
+        let mut energy = clamped.energy;
+        let mut size = clamped.energy.abs();
+        for ((gi, ui), fi) in gradient.iter_mut().zip(u).zip(&self.load) {
+            energy += 0.5 * *gi * ui - fi * ui;
+            size += (0.5 * *gi * ui).abs() + (fi * ui).abs();
+            *gi -= fi;
+        }
+        for (j, &i) in clamped.active.iter().enumerate() {
+            if i != NONE {
+                let lambda = (self.d[j] * clamped.b[j] - self.f[j]) / self.beta[i];
+                for k in self.row_ptr[i]..self.row_ptr[i + 1] {
+                    gradient[self.row_cols[k]] -= lambda * self.row_vals[k];
+                }
+            }
+        }
+        (energy, size, gradient)
+    }
+
+    /// J(u) alone.
+    fn energy(&self, k: &SparseColMat<usize, f64>, u: &[f64]) -> f64 {
+        let clamped = self.clamp(u);
+        let ku = mat_vec(k, u);
+        clamped.energy
+            + ku.iter()
+                .zip(u)
+                .zip(&self.load)
+                .map(|((ki, ui), fi)| 0.5 * ki * ui - fi * ui)
+                .sum::<f64>()
+    }
+
+    /// The problem's unknowns x from u and the interior values.
+    fn unknowns(&self, u: &[f64], clamped: &Clamped) -> Vec<f64> {
+        let mut x = vec![0.0; self.skeleton.len() + self.interior.len()];
+        for (&i, &v) in self.skeleton.iter().zip(u) {
+            x[i] = v;
+        }
+        for (&i, &v) in self.interior.iter().zip(&clamped.b) {
+            x[i] = v;
+        }
+        x
+    }
+}
+
+/// The multigrid of one level's generalised Hessian: K's hierarchy plus the
+/// active rows' terms, kept in step with the active set.
+struct HessianCycle {
+    mg: Multigrid,
+    /// The finest level's sweep position of each skeleton unknown.
+    position: Vec<usize>,
+    /// `restrictions[l]`: Pᵀ of prolongation l (level l + 1 to l), sweep numbering.
+    restrictions: Vec<SparseColMat<usize, f64>>,
+    /// Per interior unknown: the row whose term the operators hold, or NONE.
+    applied: Vec<usize>,
+}
+
+impl HessianCycle {
+    /// The hierarchy of K (kept as the given matrix: [`HessianCycle::k`]).
+    fn new(
+        condensed: &Condensed,
+        k: SparseColMat<usize, f64>,
+        prolongations: &[SparseColMat<usize, f64>],
+        options: MultigridOptions,
+    ) -> Result<Self> {
+        let mg = Multigrid::new(k, prolongations.to_vec(), options)?;
+        let mut position = vec![0; condensed.n_skeleton()];
+        for (k, &i) in mg.finest_order().iter().enumerate() {
+            position[i] = k;
+        }
+        let restrictions = (0..prolongations.len())
+            .map(|l| {
+                mg.prolongation_swept(l)
+                    .as_ref()
+                    .transpose()
+                    .to_col_major()
+                    .map_err(|e| Error::numerical(STAGE, "restriction", format!("{e:?}")))
+            })
+            .collect::<Result<_>>()?;
+        Ok(HessianCycle {
+            mg,
+            position,
+            restrictions,
+            applied: vec![NONE; condensed.interior.len()],
+        })
+    }
+
+    /// K, the skeleton block of A.
+    fn k(&self) -> &SparseColMat<usize, f64> {
+        self.mg.matrix()
+    }
+
+    /// The operators made those of the active set of `clamped`.
+    fn follow(&mut self, condensed: &Condensed, clamped: &Clamped) -> Result<()> {
+        let mut changed = false;
+        for j in 0..clamped.active.len() {
+            let (old, new) = (self.applied[j], clamped.active[j]);
+            if old == new {
+                continue;
+            }
+            changed = true;
+            for (row, sign) in [(old, -1.0), (new, 1.0)] {
+                if row != NONE {
+                    let weight =
+                        sign * condensed.d[j] / (condensed.beta[row] * condensed.beta[row]);
+                    self.add_term(condensed, row, weight)?;
+                }
+            }
+            self.applied[j] = new;
+        }
+        if changed {
+            self.mg.operators_changed()?;
+        }
+        Ok(())
+    }
+
+    /// Adds w r rᵀ to every level, r the restriction of c_i to it.
+    fn add_term(&mut self, condensed: &Condensed, i: usize, w: f64) -> Result<()> {
+        let mut r: Vec<(usize, f64)> = (condensed.row_ptr[i]..condensed.row_ptr[i + 1])
+            .map(|k| (self.position[condensed.row_cols[k]], condensed.row_vals[k]))
+            .collect();
+        for l in (0..self.mg.n_levels()).rev() {
+            for &(a, va) in &r {
+                for &(b, vb) in &r {
+                    if !self.mg.add_to_level(l, a, b, w * va * vb) {
+                        return Err(Error::numerical(
+                            STAGE,
+                            "pattern",
+                            format!("the term of constraint row {i} falls outside level {l}'s operator pattern at ({a}, {b}): the levels are not nested P1 meshes"),
+                        ));
+                    }
+                }
+            }
+            if l == 0 {
+                break;
+            }
+            let pt = &self.restrictions[l - 1];
+            let mut coarse: Vec<(usize, f64)> = Vec::with_capacity(2 * r.len());
+            for &(a, va) in &r {
+                let range = pt.symbolic().col_range(a);
+                for (&j, &p) in pt.symbolic().row_idx()[range.clone()]
+                    .iter()
+                    .zip(&pt.val()[range])
+                {
+                    match coarse.iter_mut().find(|e| e.0 == j) {
+                        Some(e) => e.1 += va * p,
+                        None => coarse.push((j, va * p)),
+                    }
+                }
+            }
+            r = coarse;
+        }
+        Ok(())
+    }
+
+    /// H δ = rhs by CG with the V-cycle; δ and rhs in skeleton numbering.
+    fn solve(&self, rhs: &[f64], rtol: f64, max_cg: usize) -> (Vec<f64>, usize) {
+        let order = self.mg.finest_order();
+        let b: Vec<f64> = order.iter().map(|&i| rhs[i]).collect();
+        let mut x = vec![0.0; b.len()];
+        let report = self.mg.pcg_swept(&b, &mut x, rtol, max_cg);
+        let mut delta = vec![0.0; b.len()];
+        for (&i, v) in order.iter().zip(x) {
+            delta[i] = v;
+        }
+        (delta, report.iterations)
+    }
+}
+
+/// What one level's Newton iteration did.
+struct LevelSolve {
+    u: Vec<f64>,
+    x: Vec<f64>,
+    lambda: Vec<f64>,
+    measures: KktMeasures,
+    newton_steps: usize,
+    cg_iterations: usize,
+    converged: bool,
+}
+
+/// Solves `problem` (constraint rows through interior unknowns, module
+/// docs) by Newton multigrid over the levels of `options`.
+pub fn multigrid_newton(
+    problem: &ContactProblem,
+    options: &MultigridNewtonOptions,
+) -> Result<SolveReport> {
+    let clock = Instant::now();
+    let levels = options.levels.as_ref().ok_or_else(|| {
+        Error::numerical(
+            STAGE,
+            "levels",
+            "no hierarchy: the multigrid method solves on the meshes of mesh.refine, given with the problem of the finest",
+        )
+    })?;
+    if levels.prolongations.len() != levels.coarser.len()
+        || levels.lifts.len() != levels.coarser.len()
+    {
+        return Err(Error::numerical(
+            STAGE,
+            "levels",
+            format!(
+                "{} coarser problems but {} prolongations and {} lifts",
+                levels.coarser.len(),
+                levels.prolongations.len(),
+                levels.lifts.len()
+            ),
+        ));
+    }
+    let problems: Vec<&ContactProblem> = levels.coarser.iter().chain([problem]).collect();
+    let finest = problems.len() - 1;
+    let mut builder = ReportBuilder::new("multigrid", clock, 0.0, 0.0)
+        .with_history(&["level", "cg_iterations", "step_length", "active_changes"])
+        .iterating(
+            "multigrid",
+            options.max_iter * problems.len(),
+            options.tol,
+            options.show_progress,
+        );
+    let mut u: Vec<f64> = Vec::new();
+    let mut per_level = Vec::with_capacity(problems.len());
+    let mut last = None;
+    for (l, level_problem) in problems.iter().enumerate() {
+        let (condensed, k) = Condensed::of(level_problem)?;
+        if let Some(p) = l.checked_sub(1).map(|c| &levels.prolongations[c]) {
+            if p.nrows() != condensed.n_skeleton()
+                || p.ncols() != u.len()
+                || levels.lifts[l - 1].len() != p.nrows()
+            {
+                return Err(Error::numerical(
+                    STAGE,
+                    "prolongation",
+                    format!(
+                        "prolongation {} is {} × {}, the levels have {} and {} skeleton unknowns",
+                        l - 1,
+                        p.nrows(),
+                        p.ncols(),
+                        u.len(),
+                        condensed.n_skeleton()
+                    ),
+                ));
+            }
+        }
+        let start = match l {
+            0 => vec![0.0; condensed.n_skeleton()],
+            _ => {
+                let mut start = mat_vec(&levels.prolongations[l - 1], &u);
+                start
+                    .iter_mut()
+                    .zip(&levels.lifts[l - 1])
+                    .for_each(|(s, lift)| *s += lift);
+                start
+            }
+        };
+        let tol = if l == finest {
+            options.tol
+        } else {
+            options.coarse_tol.max(options.tol)
+        };
+        let solved = solve_level(
+            level_problem,
+            &condensed,
+            k,
+            &levels.prolongations[..l],
+            start,
+            tol,
+            l,
+            options,
+            &mut builder,
+        )?;
+        per_level.push((solved.newton_steps, solved.cg_iterations));
+        u = solved.u.clone();
+        last = Some(solved);
+    }
+    let solved = last.expect("at least the given level");
+    builder.iterations = solved.newton_steps;
+    builder.measures = solved.measures;
+    if solved.converged {
+        builder.stop("kkt");
+    }
+    let mut parameters = vec![("levels".to_string(), problems.len() as f64)];
+    for (l, (steps, cg)) in per_level.iter().enumerate() {
+        parameters.push((format!("newton_steps_level_{l}"), *steps as f64));
+        parameters.push((format!("cg_iterations_level_{l}"), *cg as f64));
+    }
+    let cg_total: usize = per_level.iter().map(|p| p.1).sum();
+    parameters.push(("cg_iterations".into(), cg_total as f64));
+    Ok(builder.finish(solved.x, solved.lambda, parameters))
+}
+
+/// Newton on one level from the skeleton iterate `u` (module docs).
+#[allow(clippy::too_many_arguments)]
+fn solve_level(
+    problem: &ContactProblem,
+    condensed: &Condensed,
+    k: SparseColMat<usize, f64>,
+    prolongations: &[SparseColMat<usize, f64>],
+    mut u: Vec<f64>,
+    tol: f64,
+    level: usize,
+    options: &MultigridNewtonOptions,
+    builder: &mut ReportBuilder,
+) -> Result<LevelSolve> {
+    let constraint = problem
+        .constraint
+        .as_ref()
+        .expect("condensed: a constraint");
+    let compliance = jacobi_dual_diagonal(problem);
+    let mut cycle = HessianCycle::new(condensed, k, prolongations, options.cycle)?;
+    // Newton converges in finitely many steps on a piecewise quadratic:
+    // ten without a 1 % better KKT measure is a tolerance the solves
+    // cannot reach.
+    let mut monitor = Monitor::new(STAGE, "KKT measure").with_stagnation_window(10);
+    let mut clamped = condensed.clamp(&u);
+    let mut old_lambda = vec![0.0; condensed.g.len()];
+    let (mut newton_steps, mut cg_iterations) = (0, 0);
+    let (mut step_length, mut active_changes, mut cg_step) = (0.0, 0usize, 0usize);
+    loop {
+        let x = condensed.unknowns(&u, &clamped);
+        let lambda = condensed.multipliers(&clamped);
+        check_finite(STAGE, newton_steps, "x", &x)?;
+        let measures = kkt_measures_with(
+            problem,
+            &x,
+            &lambda,
+            Products {
+                compliance: Some(&compliance),
+                ..Products::default()
+            },
+            1,
+        );
+        let dual_step = dual_step_norm(&lambda, &old_lambda, &constraint.weights, DualNorm::L2);
+        builder.record(
+            builder.iterations + 1,
+            dual_step,
+            measures,
+            &[
+                level as f64,
+                cg_step as f64,
+                step_length,
+                active_changes as f64,
+            ],
+        );
+        let converged = measures.kkt <= tol;
+        if converged || newton_steps >= options.max_iter {
+            return Ok(LevelSolve {
+                u,
+                x,
+                lambda,
+                measures,
+                newton_steps,
+                cg_iterations,
+                converged,
+            });
+        }
+        monitor.stagnation(newton_steps, measures.kkt, tol)?;
+        old_lambda = lambda;
+        let (energy, size, gradient) = condensed.energy_and_gradient(cycle.k(), &u, &clamped);
+        cycle.follow(condensed, &clamped)?;
+        let rhs: Vec<f64> = gradient.iter().map(|g| -g).collect();
+        let eta = measures.kkt.min(0.1).max(0.1 * tol / measures.kkt);
+        let (delta, its) = cycle.solve(&rhs, eta, options.max_cg);
+        check_finite(STAGE, newton_steps, "the Newton step", &delta)?;
+        let slope: f64 = gradient.iter().zip(&delta).map(|(g, d)| g * d).sum();
+        if slope >= 0.0 {
+            return Err(Error::numerical(
+                STAGE,
+                "Newton step",
+                format!("level {level}, step {}: not a descent direction (∇J·δ = {slope:e}; CG made {its} iterations)", newton_steps + 1),
+            ));
+        }
+        // Armijo backtracking on J; a change of J within its round-off
+        // (near the solution) takes the step.
+        let mut t = 1.0;
+        let trial = loop {
+            let trial: Vec<f64> = u.iter().zip(&delta).map(|(a, d)| a + t * d).collect();
+            let decrease = condensed.energy(cycle.k(), &trial) - energy;
+            if decrease <= 1e-4 * t * slope || decrease.abs() <= 1e-13 * size {
+                break trial;
+            }
+            t *= 0.5;
+            if t < 1e-12 {
+                return Err(Error::numerical(
+                    STAGE,
+                    "line search",
+                    format!("level {level}, step {}: J does not decrease along the Newton step (slope {slope:e}, KKT measure {:.3e})", newton_steps + 1, measures.kkt),
+                ));
+            }
+        };
+        u = trial;
+        let next = condensed.clamp(&u);
+        active_changes = next
+            .active
+            .iter()
+            .zip(&clamped.active)
+            .filter(|(a, b)| a != b)
+            .count();
+        clamped = next;
+        newton_steps += 1;
+        cg_iterations += its;
+        (step_length, cg_step) = (t, its);
+    }
+}
