@@ -32,8 +32,9 @@
 //! the restriction of c_i stays on the vertices of the triangle's ancestor,
 //! inside K's pattern at every level; a step adds or removes the terms of
 //! the rows whose activity changed only. CG stops at the relative residual
-//! η = max(min(0.1, kkt), 0.1 tol/kkt): loose while the active set moves,
-//! as tight as the tolerance needs at the end.
+//! η = 0.1 after a step that changed the active set, else η = max(min(0.1,
+//! kkt), 0.1 tol/kkt): loose while the active set moves, as tight as the
+//! tolerance needs at the end.
 //!
 //! **Grid sequencing.** The levels' own problems (each assembled on its mesh
 //! of the hierarchy) are solved from the coarsest, each from the
@@ -43,11 +44,10 @@
 use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, Products};
 use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
-use crate::assembly::Triplets;
 use crate::error::{Error, Result};
 use crate::linalg::{mat_vec, MatrixKind};
 use crate::multigrid::{Multigrid, MultigridOptions};
-use faer::sparse::SparseColMat;
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -118,11 +118,11 @@ struct Condensed {
 
 /// A skeleton iterate's interior values and active rows.
 struct Clamped {
+    /// c_iᵀ u of every row.
+    s: Vec<f64>,
     b: Vec<f64>,
     /// Per interior unknown: the row whose bound it sits on, or NONE.
     active: Vec<usize>,
-    /// Σ_b (½ d b² − f b).
-    energy: f64,
 }
 
 impl Condensed {
@@ -174,20 +174,41 @@ impl Condensed {
         for (k, &i) in skeleton.iter().enumerate() {
             skeleton_of[i] = k;
         }
-        // A's lower triangle (whichever way it is stored), mirrored.
+        // A's lower triangle (whichever way it is stored), mirrored into
+        // compressed columns: column c receives the rows j < c while the
+        // columns j are read, then its own rows i ≥ c, so each column comes
+        // out sorted.
         let a = &problem.matrix;
         let mut d = vec![0.0; interior.len()];
-        let mut k = Triplets::new(skeleton.len(), skeleton.len());
         let mut couplings = Vec::new();
-        for j in 0..n {
+        let ns = skeleton.len();
+        let mut col_ptr = vec![0usize; ns + 1];
+        let lower = |j: usize| {
             let range = a.symbolic().col_range(j);
-            for (&i, &v) in a.symbolic().row_idx()[range.clone()]
+            a.symbolic().row_idx()[range.clone()]
                 .iter()
                 .zip(&a.val()[range])
-            {
-                if i < j {
-                    continue;
+                .filter(move |(&i, _)| i >= j)
+        };
+        for j in 0..n {
+            for (&i, _) in lower(j) {
+                let (si, sj) = (skeleton_of[i], skeleton_of[j]);
+                if si != NONE && sj != NONE {
+                    col_ptr[sj + 1] += 1;
+                    if si != sj {
+                        col_ptr[si + 1] += 1;
+                    }
                 }
+            }
+        }
+        for c in 0..ns {
+            col_ptr[c + 1] += col_ptr[c];
+        }
+        let mut next = col_ptr[..ns].to_vec();
+        let mut rows = vec![0usize; col_ptr[ns]];
+        let mut values = vec![0.0; col_ptr[ns]];
+        for j in 0..n {
+            for (&i, &v) in lower(j) {
                 match (skeleton_of[i], skeleton_of[j]) {
                     (NONE, NONE) if i == j => d[interior_of[i]] = v,
                     (NONE, NONE) if v != 0.0 => {
@@ -197,16 +218,19 @@ impl Condensed {
                     }
                     (NONE, NONE) => {}
                     (si, sj) if si != NONE && sj != NONE => {
-                        k.push(si, sj, v);
+                        (rows[next[sj]], values[next[sj]]) = (si, v);
+                        next[sj] += 1;
                         if si != sj {
-                            k.push(sj, si, v);
+                            (rows[next[si]], values[next[si]]) = (sj, v);
+                            next[si] += 1;
                         }
                     }
                     _ => couplings.push((i, j, v)),
                 }
             }
         }
-        let k = k.into_sparse();
+        let symbolic = SymbolicSparseColMat::new_checked(ns, ns, col_ptr, None, rows);
+        let k = SparseColMat::new(symbolic, values);
         let diagonal = |i: usize| match skeleton_of[i] {
             NONE => d[interior_of[i]],
             s => k
@@ -332,13 +356,14 @@ impl Condensed {
 
     /// Each interior unknown clamped between the bounds u gives it.
     fn clamp(&self, u: &[f64]) -> Clamped {
+        let s: Vec<f64> = (0..self.g.len()).map(|i| self.row_product(i, u)).collect();
         let nb = self.interior.len();
-        let (mut b, mut active, mut energy) = (vec![0.0; nb], vec![NONE; nb], 0.0);
+        let (mut b, mut active) = (vec![0.0; nb], vec![NONE; nb]);
         for j in 0..nb {
             let (mut lo, mut lo_row) = (f64::NEG_INFINITY, NONE);
             let (mut hi, mut hi_row) = (f64::INFINITY, NONE);
             for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
-                let bound = (self.g[i] - self.row_product(i, u)) / self.beta[i];
+                let bound = (self.g[i] - s[i]) / self.beta[i];
                 if self.beta[i] > 0.0 && bound > lo {
                     (lo, lo_row) = (bound, i);
                 } else if self.beta[i] < 0.0 && bound < hi {
@@ -353,9 +378,8 @@ impl Condensed {
             } else {
                 (free, NONE)
             };
-            energy += 0.5 * self.d[j] * b[j] * b[j] - self.f[j] * b[j];
         }
-        Clamped { b, active, energy }
+        Clamped { s, b, active }
     }
 
     /// λ_i of every row: (d b − f)/β_i on the active rows, 0 elsewhere.
@@ -369,56 +393,82 @@ impl Condensed {
         lambda
     }
 
-    /// J(u), the size of its terms (the scale of its round-off) and ∇J(u)
-    /// (module docs).
-    fn energy_and_gradient(
+    /// J(u + tδ) − J(u) for the clamped values of u, without the
+    /// cancellation of subtracting two values of J: t (K u − F)·δ + ½ t² δᵀK δ
+    /// plus each interior unknown's change (b' − b)(½ d (b' + b) − f), given
+    /// `residual_slope` = (K u − F)·δ and `curvature` = δᵀK δ. With the
+    /// clamped values at u + tδ.
+    fn change_along(
         &self,
-        k: &SparseColMat<usize, f64>,
-        u: &[f64],
         clamped: &Clamped,
-    ) -> (f64, f64, Vec<f64>) {
-        let mut gradient = mat_vec(k, u);
-        let mut energy = clamped.energy;
-        let mut size = clamped.energy.abs();
-        for ((gi, ui), fi) in gradient.iter_mut().zip(u).zip(&self.load) {
-            energy += 0.5 * *gi * ui - fi * ui;
-            size += (0.5 * *gi * ui).abs() + (fi * ui).abs();
-            *gi -= fi;
+        trial: &Clamped,
+        t: f64,
+        residual_slope: f64,
+        curvature: f64,
+    ) -> f64 {
+        let interior: f64 = (0..self.d.len())
+            .map(|j| {
+                let (b, b_new) = (clamped.b[j], trial.b[j]);
+                (b_new - b) * (0.5 * self.d[j] * (b_new + b) - self.f[j])
+            })
+            .sum();
+        t * residual_slope + 0.5 * t * t * curvature + interior
+    }
+
+    /// The iterate of u with its clamped values, from one product with K.
+    fn iterate(&self, k: &SparseColMat<usize, f64>, u: &[f64], clamped: &Clamped) -> Iterate {
+        let n = self.skeleton.len() + self.interior.len();
+        let ku = mat_vec(k, u);
+        let lambda = self.multipliers(clamped);
+        let (mut x, mut ax, mut ct_lambda) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mut cx = clamped.s.clone();
+        let mut gradient = vec![0.0; u.len()];
+        for (k, &i) in self.skeleton.iter().enumerate() {
+            (x[i], ax[i]) = (u[k], ku[k]);
         }
-        for (j, &i) in clamped.active.iter().enumerate() {
-            if i != NONE {
-                let lambda = (self.d[j] * clamped.b[j] - self.f[j]) / self.beta[i];
-                for k in self.row_ptr[i]..self.row_ptr[i + 1] {
-                    gradient[self.row_cols[k]] -= lambda * self.row_vals[k];
+        for (j, &unknown) in self.interior.iter().enumerate() {
+            let b = clamped.b[j];
+            (x[unknown], ax[unknown]) = (b, self.d[j] * b);
+            for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
+                cx[i] += self.beta[i] * b;
+                ct_lambda[unknown] += self.beta[i] * lambda[i];
+                if lambda[i] != 0.0 {
+                    for p in self.row_ptr[i]..self.row_ptr[i + 1] {
+                        gradient[self.row_cols[p]] -= lambda[i] * self.row_vals[p];
+                    }
                 }
             }
         }
-        (energy, size, gradient)
-    }
-
-    /// J(u) alone.
-    fn energy(&self, k: &SparseColMat<usize, f64>, u: &[f64]) -> f64 {
-        let clamped = self.clamp(u);
-        let ku = mat_vec(k, u);
-        clamped.energy
-            + ku.iter()
-                .zip(u)
-                .zip(&self.load)
-                .map(|((ki, ui), fi)| 0.5 * ki * ui - fi * ui)
-                .sum::<f64>()
-    }
-
-    /// The problem's unknowns x from u and the interior values.
-    fn unknowns(&self, u: &[f64], clamped: &Clamped) -> Vec<f64> {
-        let mut x = vec![0.0; self.skeleton.len() + self.interior.len()];
-        for (&i, &v) in self.skeleton.iter().zip(u) {
-            x[i] = v;
+        let mut residual = ku;
+        for (k, &i) in self.skeleton.iter().enumerate() {
+            residual[k] -= self.load[k];
+            ct_lambda[i] = -gradient[k];
+            gradient[k] += residual[k];
         }
-        for (&i, &v) in self.interior.iter().zip(&clamped.b) {
-            x[i] = v;
+        Iterate {
+            x,
+            lambda,
+            ax,
+            cx,
+            ct_lambda,
+            residual,
+            gradient,
         }
-        x
     }
+}
+
+/// An iterate of the whole problem and what its measures and the Newton
+/// step read.
+struct Iterate {
+    x: Vec<f64>,
+    lambda: Vec<f64>,
+    /// A x, C x and Cᵀλ (the measures' products).
+    ax: Vec<f64>,
+    cx: Vec<f64>,
+    ct_lambda: Vec<f64>,
+    /// K u − F and ∇J = K u − F − Σ λ_i c_i, on the skeleton.
+    residual: Vec<f64>,
+    gradient: Vec<f64>,
 }
 
 /// The multigrid of one level's generalised Hessian: K's hierarchy plus the
@@ -693,16 +743,25 @@ fn solve_level(
     let (mut newton_steps, mut cg_iterations) = (0, 0);
     let (mut step_length, mut active_changes, mut cg_step) = (0.0, 0usize, 0usize);
     loop {
-        let x = condensed.unknowns(&u, &clamped);
-        let lambda = condensed.multipliers(&clamped);
+        let Iterate {
+            x,
+            lambda,
+            ax,
+            cx,
+            ct_lambda,
+            residual,
+            gradient,
+        } = condensed.iterate(cycle.k(), &u, &clamped);
         check_finite(STAGE, newton_steps, "x", &x)?;
         let measures = kkt_measures_with(
             problem,
             &x,
             &lambda,
             Products {
+                ax: Some(&ax),
+                cx: Some(&cx),
+                ct_lambda: Some(&ct_lambda),
                 compliance: Some(&compliance),
-                ..Products::default()
             },
             1,
         );
@@ -732,10 +791,17 @@ fn solve_level(
         }
         monitor.stagnation(newton_steps, measures.kkt, tol)?;
         old_lambda = lambda;
-        let (energy, size, gradient) = condensed.energy_and_gradient(cycle.k(), &u, &clamped);
         cycle.follow(condensed, &clamped)?;
         let rhs: Vec<f64> = gradient.iter().map(|g| -g).collect();
-        let eta = measures.kkt.min(0.1).max(0.1 * tol / measures.kkt);
+        // While the active set moves, the step mostly moves it: a loose
+        // solve. Once it holds, as tight as the KKT measure needs.
+        // While the active set moves, the step mostly moves it: a loose
+        // solve. Once it holds, as tight as the KKT measure needs.
+        let eta = if active_changes > 0 {
+            0.1
+        } else {
+            measures.kkt.min(0.1).max(0.1 * tol / measures.kkt)
+        };
         let (delta, its) = cycle.solve(&rhs, eta, options.max_cg);
         check_finite(STAGE, newton_steps, "the Newton step", &delta)?;
         let slope: f64 = gradient.iter().zip(&delta).map(|(g, d)| g * d).sum();
@@ -746,14 +812,17 @@ fn solve_level(
                 format!("level {level}, step {}: not a descent direction (∇J·δ = {slope:e}; CG made {its} iterations)", newton_steps + 1),
             ));
         }
-        // Armijo backtracking on J; a change of J within its round-off
-        // (near the solution) takes the step.
+        // Armijo backtracking on J, its change computed without cancellation.
+        let residual_slope: f64 = residual.iter().zip(&delta).map(|(r, d)| r * d).sum();
+        let k_delta = mat_vec(cycle.k(), &delta);
+        let curvature: f64 = k_delta.iter().zip(&delta).map(|(a, d)| a * d).sum();
         let mut t = 1.0;
-        let trial = loop {
+        let (trial, next) = loop {
             let trial: Vec<f64> = u.iter().zip(&delta).map(|(a, d)| a + t * d).collect();
-            let decrease = condensed.energy(cycle.k(), &trial) - energy;
-            if decrease <= 1e-4 * t * slope || decrease.abs() <= 1e-13 * size {
-                break trial;
+            let next = condensed.clamp(&trial);
+            let change = condensed.change_along(&clamped, &next, t, residual_slope, curvature);
+            if change <= 1e-4 * t * slope {
+                break (trial, next);
             }
             t *= 0.5;
             if t < 1e-12 {
@@ -765,7 +834,6 @@ fn solve_level(
             }
         };
         u = trial;
-        let next = condensed.clamp(&u);
         active_changes = next
             .active
             .iter()
