@@ -336,3 +336,12 @@ peers-bench: petsc-check build $(PEERS_BENCH)/ball
 MG_SIZES ?= 129 257 513 1025
 multigrid-bench: deps
 	$(CARGO) run --release --example multigrid_bench -- $(MG_SIZES)
+
+# Issue 45's shell: MG-preconditioned CG beside the direct solver on the
+# p2b-psri system of the hypar without its obstacle, for t/L = 1e-1 … 1e-4
+# on N × N cells for each N of SHELL_MG_SIZES (N = 4 · 2^k): PCG iterations,
+# times, peak RSS (docs/solvers.md, "Multigrid for the shell").
+.PHONY: shell-multigrid-bench
+SHELL_MG_SIZES ?= 16 32 64
+shell-multigrid-bench: deps
+	$(CARGO) run --release --example shell_multigrid_bench -- $(SHELL_MG_SIZES)

@@ -2,7 +2,8 @@
 //! orientation, boundary parts, the disk's boundary snapped onto its
 //! circle), the P1 prolongation (linear functions, the Galerkin identity)
 //! and the V-cycle (contraction and PCG iterations independent of the
-//! level, the direct solver's answer).
+//! level, the direct solver's answer); the P2 prolongation (quadratic
+//! functions) and the shell's multigrid on a thick shell.
 #![allow(clippy::needless_range_loop)]
 
 mod common;
@@ -12,9 +13,13 @@ use faer::sparse::SparseColMat;
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{factor_once, LinearOptions, MatrixKind, Solves, SystemPattern};
 use obstacle_fem::mesh::{BoundaryGeometry, Hierarchy, Mesh};
+use obstacle_fem::models::naghdi::system::NaghdiSystem;
+use obstacle_fem::models::ModelSystem;
 use obstacle_fem::multigrid::{
-    p1_load, p1_stiffness, pcg, Multigrid, MultigridOptions, P1Levels, Smoother, SweepOrder,
+    p1_load, p1_stiffness, p2_prolongation, pcg, FieldLevel, Multigrid, MultigridOptions, P1Levels,
+    P2FieldLevels, Smoother, SweepOrder,
 };
+use obstacle_fem::scene::Scene;
 use std::f64::consts::PI;
 
 /// `meshes/NAME.geo` with `n` through gmsh.
@@ -379,6 +384,114 @@ fn vcycle_and_pcg_converge_independently_of_the_level() {
             report.mean_contraction(),
             cg.iterations,
             others.join(", ")
+        );
+    }
+}
+
+#[test]
+fn p2_prolongation_reproduces_quadratic_functions() {
+    let quadratic = |p: [f64; 2]| {
+        0.3 + 1.7 * p[0] - 2.9 * p[1] + 0.8 * p[0] * p[0] - 1.3 * p[0] * p[1] + 2.1 * p[1] * p[1]
+    };
+    // The P2 nodes of a mesh: vertices, then edge midpoints (`Space`'s order).
+    let nodes = |m: &Mesh| -> Vec<[f64; 2]> {
+        let mut x = m.vertices.clone();
+        x.extend(m.edges.iter().map(|&[a, b]| {
+            let (p, q) = (m.vertices[a], m.vertices[b]);
+            [0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1])]
+        }));
+        x
+    };
+    let h = Hierarchy::new(gmsh_mesh("diamond", 2), 3, BoundaryGeometry::straight()).unwrap();
+    for l in 0..3 {
+        let (c, f) = (&h.levels[l], &h.levels[l + 1]);
+        let p = p2_prolongation(c, f).unwrap();
+        let coarse: Vec<f64> = nodes(c).into_iter().map(quadratic).collect();
+        let fine = product(&p, &coarse);
+        let scale = fine.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (i, &x) in nodes(f).iter().enumerate() {
+            assert!(
+                (fine[i] - quadratic(x)).abs() <= 1e-13 * scale,
+                "level {l}, fine node {i}: {} against {}",
+                fine[i],
+                quadratic(x)
+            );
+        }
+    }
+}
+
+/// The thick hypar (t/L = 0.1, `p2b-psri`, no obstacle) on the diamond's
+/// 4 × 4 grid refined once and twice: PCG with the shell's multigrid
+/// reaches 1e-8 in 12 iterations at both levels (measured; the bound
+/// leaves room).
+#[test]
+fn shell_multigrid_preconditions_the_thick_shell() {
+    let scene = Scene::load(
+        &manifest_path("pipelines/scenes/naghdi-hypar-free.toml"),
+        &[
+            "element=\"p2b-psri\"".to_string(),
+            "shell.thickness=10".to_string(),
+        ],
+    )
+    .unwrap();
+    for refinements in 1..=2 {
+        let h = Hierarchy::new(
+            gmsh_mesh("diamond", 4),
+            refinements,
+            BoundaryGeometry::straight(),
+        )
+        .unwrap();
+        let systems: Vec<NaghdiSystem> = h
+            .levels
+            .iter()
+            .map(|m| NaghdiSystem::setup(m, &scene).unwrap())
+            .collect();
+        let offsets: Vec<Vec<usize>> = systems
+            .iter()
+            .map(|s| s.layout.fields.iter().map(|f| f.offset).collect())
+            .collect();
+        let levels: Vec<FieldLevel> = systems
+            .iter()
+            .zip(&offsets)
+            .map(|(s, offsets)| FieldLevel {
+                offsets,
+                numbering: &s.numbering,
+            })
+            .collect();
+        let shell = P2FieldLevels::new(&h, &levels).unwrap();
+        let problem = systems[refinements].assemble().unwrap();
+        // Coarser levels are P2 alone: their free dofs less the bubbles.
+        for l in 0..refinements {
+            let s = &systems[l];
+            let bubbles = 5 * h.levels[l].n_triangles();
+            assert_eq!(shell.sizes[l], s.numbering.n_free() - bubbles);
+        }
+        assert_eq!(shell.sizes[refinements], problem.n());
+        let direct = direct_solve(&problem.matrix, &problem.rhs);
+        let mg = Multigrid::new(
+            problem.matrix.clone(),
+            shell.prolongations,
+            MultigridOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(mg.sizes(), shell.sizes);
+        let mut x = vec![0.0; problem.n()];
+        let cg = pcg(
+            &problem.matrix,
+            &problem.rhs,
+            &mut x,
+            |r, z| mg.precondition(r, z),
+            1e-8,
+            100,
+        );
+        assert!(cg.converged && cg.iterations <= 16, "{refinements}: {cg:?}");
+        let error = relative_difference(&x, &direct);
+        assert!(error < 1e-6, "{refinements}: PCG vs direct {error:e}");
+        eprintln!(
+            "thick shell, {} levels, {} unknowns: PCG {} iterations",
+            refinements + 1,
+            problem.n(),
+            cg.iterations
         );
     }
 }
