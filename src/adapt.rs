@@ -208,7 +208,7 @@ pub fn run_adaptive(scene: &Scene, out: &Path) -> Result<(RunSummary, Vec<StepRo
             problem,
             report,
         } = solve_on(scene, &mesh, Start::Carried(&carried), false, &mut |_| {})?;
-        let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
+        let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report)?;
         let estimator = numeric_attr(&data.root_attrs, "estimator").ok_or_else(|| {
             scene.error(
                 "adapt",

@@ -91,13 +91,15 @@ pub fn quad_points<'a>(
 
 /// Every quadrature point of the rule on the mesh, triangle by triangle: where
 /// assembly evaluates data given as expressions (checked finite there).
-pub fn quadrature_points(mesh: &crate::mesh::Mesh, rule: &TriangleRule) -> Vec<[f64; 2]> {
-    (0..mesh.n_triangles())
-        .flat_map(|t| {
-            let g = TriangleGeometry::new(mesh, t);
-            quad_points(&g, t, rule).map(|q| q.x).collect::<Vec<_>>()
-        })
-        .collect()
+/// Computed as they are read: a check of a number reads none.
+pub fn quadrature_points<'a>(
+    mesh: &'a crate::mesh::Mesh,
+    rule: &'a TriangleRule,
+) -> impl Iterator<Item = [f64; 2]> + 'a {
+    (0..mesh.n_triangles()).flat_map(move |t| {
+        let g = TriangleGeometry::new(mesh, t);
+        rule.points.iter().map(move |&lambda| g.point(lambda))
+    })
 }
 
 /// Coordinate-format matrix entries (duplicates are summed on conversion),
@@ -407,36 +409,115 @@ pub fn assemble_linear(
     out
 }
 
+/// Integrates N functionals of F finite-element functions on one mesh (each
+/// function's value and gradient at the point) over the mesh, in one pass
+/// over the quadrature points: e.g. error norms against an exact solution,
+/// which the integrand evaluates once per point for all of them. Each total
+/// is the sum over the triangles, in their order, of the triangle's
+/// Σ_q w_q integrand_q ([`integrate_each_triangle`]), whatever `threads`.
+pub fn integrate_fields<const F: usize, const N: usize, E, I>(
+    fields: [(&Space, &[f64]); F],
+    rule: &TriangleRule,
+    threads: usize,
+    integrand: impl Fn() -> I + Sync,
+) -> std::result::Result<[f64; N], E>
+where
+    E: Send,
+    I: FnMut(&[ShapeValue; F], &QuadPoint) -> std::result::Result<[f64; N], E>,
+{
+    let mut totals = [0.0; N];
+    for sum in integrate_each_triangle(fields, rule, threads, integrand)? {
+        for j in 0..N {
+            totals[j] += sum[j];
+        }
+    }
+    Ok(totals)
+}
+
 /// Integrates a functional of one FE function (value and gradient at each point),
-/// per triangle: e.g. error norms against an exact solution.
+/// per triangle: e.g. a constraint row checked against an independent quadrature.
 pub fn integrate_per_triangle(
     space: &Space,
     coefficients: &[f64],
     rule: &TriangleRule,
-    integrand: impl Fn(&ShapeValue, &QuadPoint) -> f64,
+    integrand: impl Fn(&ShapeValue, &QuadPoint) -> f64 + Sync,
 ) -> Vec<f64> {
-    let mesh = space.mesh;
-    let tab = Tabulation::new(space.element, rule);
-    let n = space.element.n_local();
-    (0..mesh.n_triangles())
-        .map(|t| {
+    let per_triangle = integrate_each_triangle([(space, coefficients)], rule, 1, || {
+        |[value]: &[ShapeValue; 1], p: &QuadPoint| {
+            Ok::<_, std::convert::Infallible>([integrand(value, p)])
+        }
+    });
+    let Ok(per_triangle) = per_triangle;
+    per_triangle.into_iter().map(|[v]| v).collect()
+}
+
+/// For every triangle, Σ_q w_q integrand_q of N functionals of F
+/// finite-element functions on one mesh (each function's value and gradient
+/// at the point). The triangles are split into `threads` contiguous ranges,
+/// each integrated on its own thread with its own integrand (`integrand()`:
+/// e.g. its own evaluator's scratch space); the sums do not depend on the
+/// split. An error of the integrand ends the pass: the first in triangle order.
+fn integrate_each_triangle<const F: usize, const N: usize, E, I>(
+    fields: [(&Space, &[f64]); F],
+    rule: &TriangleRule,
+    threads: usize,
+    integrand: impl Fn() -> I + Sync,
+) -> std::result::Result<Vec<[f64; N]>, E>
+where
+    E: Send,
+    I: FnMut(&[ShapeValue; F], &QuadPoint) -> std::result::Result<[f64; N], E>,
+{
+    let Some(mesh) = fields.first().map(|(space, _)| space.mesh) else {
+        return Ok(Vec::new());
+    };
+    let tabulations = fields.map(|(space, _)| Tabulation::new(space.element, rule));
+    // Triangle first + k's sum in sums[k].
+    let integrate_range = |first: usize, sums: &mut [[f64; N]]| -> std::result::Result<(), E> {
+        let mut integrand = integrand();
+        for (k, sum) in sums.iter_mut().enumerate() {
+            let t = first + k;
             let g = TriangleGeometry::new(mesh, t);
-            let (dofs, _) = space.element_dofs(t);
-            let mut sum = 0.0;
+            let dofs = fields.map(|(space, _)| space.element_dofs(t));
             for (q, p) in quad_points(&g, t, rule).enumerate() {
-                let s = tab.shapes(&g, q);
-                let mut uh = ShapeValue::default();
-                for i in 0..n {
-                    let c = coefficients[dofs[i]];
-                    uh.value += c * s[i].value;
-                    uh.grad[0] += c * s[i].grad[0];
-                    uh.grad[1] += c * s[i].grad[1];
+                let mut values = [ShapeValue::default(); F];
+                for (f, value) in values.iter_mut().enumerate() {
+                    let (coefficients, (dofs, n)) = (fields[f].1, dofs[f]);
+                    let s = tabulations[f].shapes(&g, q);
+                    for i in 0..n {
+                        let c = coefficients[dofs[i]];
+                        value.value += c * s[i].value;
+                        value.grad[0] += c * s[i].grad[0];
+                        value.grad[1] += c * s[i].grad[1];
+                    }
                 }
-                sum += p.weight * integrand(&uh, &p);
+                let v = integrand(&values, &p)?;
+                for j in 0..N {
+                    sum[j] += p.weight * v[j];
+                }
             }
-            sum
-        })
-        .collect()
+        }
+        Ok(())
+    };
+    let n_triangles = mesh.n_triangles();
+    let mut sums = vec![[0.0; N]; n_triangles];
+    let per_thread = n_triangles.div_ceil(threads.max(1)).max(1);
+    if per_thread >= n_triangles {
+        integrate_range(0, &mut sums)?;
+    } else {
+        let integrate_range = &integrate_range;
+        std::thread::scope(|scope| {
+            let ranges: Vec<_> = sums
+                .chunks_mut(per_thread)
+                .enumerate()
+                .map(|(k, range)| scope.spawn(move || integrate_range(k * per_thread, range)))
+                .collect();
+            // Joined in order: the first range's error is the first error.
+            ranges
+                .into_iter()
+                .try_for_each(|r| r.join().expect("an integration thread panicked"))
+        })?;
+    }
+    Ok(sums)
 }
 
 /// Lumped mass: the row sums of the mass matrix (for P1, |supp φ_i|/3).

@@ -230,6 +230,30 @@ impl Node {
         list.into_iter().take(n).map(|i| i as usize)
     }
 
+    /// The same node with every child index i replaced by `m(i)`.
+    fn map_children(self, m: impl Fn(u32) -> u32) -> Node {
+        match self {
+            Node::Neg(a) => Node::Neg(m(a)),
+            Node::Unary(f, a) => Node::Unary(f, m(a)),
+            Node::Binary(op, a, b) => Node::Binary(op, m(a), m(b)),
+            Node::If(c, a, b) => Node::If(m(c), m(a), m(b)),
+            leaf => leaf,
+        }
+    }
+
+    /// What identifies the node's computation: equal keys, equal values
+    /// (a number by its bits, so a NaN matches itself).
+    fn key(&self) -> (u8, u64, [u32; 3]) {
+        match *self {
+            Node::Number(v) => (0, v.to_bits(), [0; 3]),
+            Node::Variable(v) => (1, v as u64, [0; 3]),
+            Node::Neg(a) => (2, 0, [a, 0, 0]),
+            Node::Unary(f, a) => (3, f as u64, [a, 0, 0]),
+            Node::Binary(op, a, b) => (4, op as u64, [a, b, 0]),
+            Node::If(c, a, b) => (5, 0, [c, a, b]),
+        }
+    }
+
     fn precedence(&self) -> u8 {
         match self {
             Node::Neg(_) => SIGN_PRECEDENCE,
@@ -331,48 +355,12 @@ impl Tree {
         let mut nodes = Vec::new();
         for (i, node) in self.nodes.iter().enumerate() {
             if reached[i] {
-                let m = |c: u32| index[c as usize];
                 let position = nodes.len() as u32;
-                nodes.push(match *node {
-                    Node::Neg(a) => Node::Neg(m(a)),
-                    Node::Unary(f, a) => Node::Unary(f, m(a)),
-                    Node::Binary(op, a, b) => Node::Binary(op, m(a), m(b)),
-                    Node::If(c, a, b) => Node::If(m(c), m(a), m(b)),
-                    leaf => leaf,
-                });
+                nodes.push(node.map_children(|c| index[c as usize]));
                 index[i] = position;
             }
         }
         Tree { nodes }
-    }
-
-    /// Every node's value at (x, y), in `values` (one per node).
-    fn eval_into(&self, x: f64, y: f64, values: &mut [f64]) -> f64 {
-        // r = hypot(x, y) only for an expression that reads it.
-        let mut r = None;
-        for (i, node) in self.nodes.iter().enumerate() {
-            let v = |j: u32| values[j as usize];
-            values[i] = match *node {
-                Node::Number(c) => c,
-                Node::Variable(Variable::X) => x,
-                Node::Variable(Variable::Y) => y,
-                Node::Variable(Variable::R) => *r.get_or_insert_with(|| x.hypot(y)),
-                Node::Neg(a) => -v(a),
-                Node::Unary(f, a) => f.apply(v(a)),
-                Node::Binary(op, a, b) => op.apply(v(a), v(b)),
-                Node::If(c, a, b) => {
-                    let c = v(c);
-                    if c.is_nan() {
-                        f64::NAN
-                    } else if c != 0.0 {
-                        v(a)
-                    } else {
-                        v(b)
-                    }
-                }
-            };
-        }
-        values[self.root()]
     }
 
     /// The exact partial derivative with respect to `var` (x or y).
@@ -424,6 +412,104 @@ impl Tree {
             self.push(node)?;
         }
         Ok(self.pruned())
+    }
+}
+
+/// A tree made ready for evaluation: every number's value stored once,
+/// every other node one step that computes it from earlier nodes' values
+/// (the arithmetic dispatched once per node, a square as a product).
+#[derive(Clone, Debug, Default)]
+struct Program {
+    /// One value per node: the numbers' values, 0 where a step computes it.
+    initial: Vec<f64>,
+    /// (node, how it is computed) for every node but the numbers, in storage order.
+    steps: Vec<(u32, Step)>,
+    /// Whether a node reads r (then r = hypot(x, y) is computed once per point).
+    reads_r: bool,
+}
+
+/// How a node other than a number is computed, from the values of the nodes named.
+#[derive(Clone, Copy, Debug)]
+enum Step {
+    X,
+    Y,
+    R,
+    Neg(u32),
+    Unary(Function, u32),
+    Add(u32, u32),
+    Sub(u32, u32),
+    Mul(u32, u32),
+    Div(u32, u32),
+    /// a^2 with the exponent the number 2 ([`Binary::apply`]'s product).
+    Square(u32),
+    /// The other operators, through [`Binary::apply`].
+    Binary(Binary, u32, u32),
+    If(u32, u32, u32),
+}
+
+impl Program {
+    fn of(tree: &Tree) -> Program {
+        let mut initial = vec![0.0; tree.nodes.len()];
+        let mut steps = Vec::new();
+        for (i, node) in tree.nodes.iter().enumerate() {
+            let step = match *node {
+                Node::Number(v) => {
+                    initial[i] = v;
+                    continue;
+                }
+                Node::Variable(Variable::X) => Step::X,
+                Node::Variable(Variable::Y) => Step::Y,
+                Node::Variable(Variable::R) => Step::R,
+                Node::Neg(a) => Step::Neg(a),
+                Node::Unary(f, a) => Step::Unary(f, a),
+                Node::Binary(Binary::Add, a, b) => Step::Add(a, b),
+                Node::Binary(Binary::Sub, a, b) => Step::Sub(a, b),
+                Node::Binary(Binary::Mul, a, b) => Step::Mul(a, b),
+                Node::Binary(Binary::Div, a, b) => Step::Div(a, b),
+                Node::Binary(Binary::Pow, a, b) if tree.number(b) == Some(2.0) => Step::Square(a),
+                Node::Binary(op, a, b) => Step::Binary(op, a, b),
+                Node::If(c, a, b) => Step::If(c, a, b),
+            };
+            steps.push((i as u32, step));
+        }
+        let reads_r = steps.iter().any(|(_, step)| matches!(step, Step::R));
+        Program {
+            initial,
+            steps,
+            reads_r,
+        }
+    }
+
+    /// Every node's value at (x, y) into `values`, which holds
+    /// [`Program::initial`]'s numbers (the steps never write them).
+    fn run(&self, x: f64, y: f64, values: &mut [f64]) {
+        let r = if self.reads_r { x.hypot(y) } else { 0.0 };
+        for &(i, step) in &self.steps {
+            let v = |j: u32| values[j as usize];
+            values[i as usize] = match step {
+                Step::X => x,
+                Step::Y => y,
+                Step::R => r,
+                Step::Neg(a) => -v(a),
+                Step::Unary(f, a) => f.apply(v(a)),
+                Step::Add(a, b) => v(a) + v(b),
+                Step::Sub(a, b) => v(a) - v(b),
+                Step::Mul(a, b) => v(a) * v(b),
+                Step::Div(a, b) => v(a) / v(b),
+                Step::Square(a) => v(a) * v(a),
+                Step::Binary(op, a, b) => op.apply(v(a), v(b)),
+                Step::If(c, a, b) => {
+                    let c = v(c);
+                    if c.is_nan() {
+                        f64::NAN
+                    } else if c != 0.0 {
+                        v(a)
+                    } else {
+                        v(b)
+                    }
+                }
+            };
+        }
     }
 }
 
@@ -577,6 +663,8 @@ pub struct Expression {
     /// derivative's printed form).
     text: String,
     tree: Tree,
+    /// `tree` made ready for evaluation.
+    program: Program,
 }
 
 impl PartialEq for Expression {
@@ -586,13 +674,20 @@ impl PartialEq for Expression {
 }
 
 impl Expression {
-    pub fn constant(v: f64) -> Expression {
+    fn new(text: String, tree: Tree) -> Expression {
+        let program = Program::of(&tree);
         Expression {
-            text: format!("{v:?}"),
-            tree: Tree {
-                nodes: vec![Node::Number(v)],
-            },
+            text,
+            tree,
+            program,
         }
+    }
+
+    pub fn constant(v: f64) -> Expression {
+        let tree = Tree {
+            nodes: vec![Node::Number(v)],
+        };
+        Expression::new(format!("{v:?}"), tree)
     }
 
     /// Compiles `text`; the error says where (1-based character) and why.
@@ -612,10 +707,7 @@ impl Expression {
             .tree
             .finished(root)
             .map_err(|reason| locate(text, 0, &reason))?;
-        Ok(Expression {
-            text: text.to_string(),
-            tree,
-        })
+        Ok(Expression::new(text.to_string(), tree))
     }
 
     /// The value at the point (x, y).
@@ -626,9 +718,13 @@ impl Expression {
         }
         // Small expressions (nearly all scenes') evaluate on the stack.
         const ON_STACK: usize = 64;
+        let evaluate = |values: &mut [f64]| {
+            values.copy_from_slice(&self.program.initial);
+            self.program.run(p[0], p[1], values);
+            values[n - 1]
+        };
         if n <= ON_STACK {
-            let mut values = [0.0; ON_STACK];
-            self.tree.eval_into(p[0], p[1], &mut values[..n])
+            evaluate(&mut [0.0; ON_STACK][..n])
         } else {
             thread_local! {
                 static VALUES: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
@@ -636,7 +732,7 @@ impl Expression {
             VALUES.with(|values| {
                 let mut values = values.borrow_mut();
                 values.resize(n, 0.0);
-                self.tree.eval_into(p[0], p[1], &mut values)
+                evaluate(&mut values)
             })
         }
     }
@@ -667,7 +763,7 @@ impl Expression {
             .derivative(var)
             .map_err(|e| format!("expression \"{}\": its derivative has {e}", self.text))?;
         let text = Printer::scene().print(&tree);
-        Ok(Expression { text, tree })
+        Ok(Expression::new(text, tree))
     }
 
     /// The formula in FreeFEM's syntax (a `func` body in x, y).
@@ -683,31 +779,153 @@ impl Expression {
         key: &str,
         points: impl IntoIterator<Item = [f64; 2]>,
     ) -> Result<(), String> {
-        let bad = |v: f64| v.is_nan() || v.abs() > MAGNITUDE_LIMIT;
         if let Some(v) = self.as_constant() {
-            return if !v.is_finite() {
-                Err(format!("{key} = {v} is not a finite number"))
-            } else if bad(v) {
-                Err(format!("{key} = {v:e} is beyond ±1e100"))
-            } else {
-                Ok(())
-            };
+            return self.refusal(key, [0.0; 2], v).map_or(Ok(()), Err);
         }
         for p in points {
-            let v = self.eval(p);
-            if bad(v) {
+            if let Some(reason) = self.refusal(key, p, self.eval(p)) {
+                return Err(reason);
+            }
+        }
+        Ok(())
+    }
+
+    /// Why the value `v` at the point `p` is refused (see
+    /// [`Expression::check_finite_at`]), or None when it is accepted.
+    fn refusal(&self, key: &str, p: [f64; 2], v: f64) -> Option<String> {
+        if accepted(v) {
+            return None;
+        }
+        Some(match self.as_constant() {
+            Some(c) if !c.is_finite() => format!("{key} = {c} is not a finite number"),
+            Some(c) => format!("{key} = {c:e} is beyond ±1e100"),
+            None => {
                 let why = if v.is_finite() {
                     format!("{v:e}, beyond ±1e100")
                 } else {
                     format!("{v}")
                 };
-                return Err(format!(
+                format!(
                     "{key} = \"{}\" is {why} at the point ({:.6}, {:.6}): the expression must be a finite number of magnitude at most 1e100 everywhere on the mesh",
                     self.text, p[0], p[1]
-                ));
+                )
             }
+        })
+    }
+}
+
+/// A finite number of magnitude at most [`MAGNITUDE_LIMIT`] (not NaN).
+fn accepted(v: f64) -> bool {
+    v.abs() <= MAGNITUDE_LIMIT
+}
+
+/// Several expressions evaluated together, each under the scene key that
+/// names it in errors: one tree holds every distinct node of all of them
+/// once (the terms they share, e.g. u's inside its derivatives, and r), so
+/// one pass per point computes them all with the values each alone gives.
+/// For data evaluated at millions of quadrature points, such as an exact
+/// solution's u, ∇u and λ.
+#[derive(Clone, Debug)]
+pub struct ExpressionSet {
+    members: Vec<(String, Expression)>,
+    /// The merged tree, ready for evaluation.
+    program: Program,
+    /// Each member's node in the merged tree.
+    roots: Vec<usize>,
+}
+
+impl ExpressionSet {
+    /// The members (key, expression) merged into one tree.
+    pub fn new(members: Vec<(String, Expression)>) -> ExpressionSet {
+        let mut tree = Tree::default();
+        let mut known = std::collections::HashMap::new();
+        let mut roots = Vec::with_capacity(members.len());
+        for (_, e) in &members {
+            // index[i]: the merged node of the member's node i.
+            let mut index: Vec<u32> = Vec::with_capacity(e.tree.nodes.len());
+            for node in &e.tree.nodes {
+                let node = node.map_children(|c| index[c as usize]);
+                let merged = *known.entry(node.key()).or_insert_with(|| {
+                    tree.nodes.push(node);
+                    (tree.nodes.len() - 1) as u32
+                });
+                index.push(merged);
+            }
+            roots.push(*index.last().expect("an expression has a root") as usize);
+        }
+        ExpressionSet {
+            members,
+            program: Program::of(&tree),
+            roots,
+        }
+    }
+
+    /// The number of members.
+    pub fn len(&self) -> usize {
+        self.members.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.members.is_empty()
+    }
+
+    /// An evaluator of the set (its scratch space reused from point to point).
+    pub fn evaluator(&self) -> SetEvaluator<'_> {
+        SetEvaluator {
+            set: self,
+            nodes: self.program.initial.clone(),
+            values: vec![0.0; self.members.len()],
+        }
+    }
+
+    /// The first of `points` where a member is refused as
+    /// [`Expression::check_finite_at`] refuses it: (its key, the reason).
+    pub fn check_finite_at(
+        &self,
+        points: impl IntoIterator<Item = [f64; 2]>,
+    ) -> Result<(), (&str, String)> {
+        let mut evaluator = self.evaluator();
+        for p in points {
+            evaluator.finite_at(p)?;
         }
         Ok(())
+    }
+}
+
+/// Evaluates an [`ExpressionSet`] point by point without allocating.
+pub struct SetEvaluator<'s> {
+    set: &'s ExpressionSet,
+    /// Every node's value at the last point (the numbers' from the start).
+    nodes: Vec<f64>,
+    /// Every member's value at the last point, in the set's order.
+    values: Vec<f64>,
+}
+
+impl<'s> SetEvaluator<'s> {
+    /// Every member's value at `p`, in the set's order.
+    pub fn at(&mut self, p: [f64; 2]) -> &[f64] {
+        self.set.program.run(p[0], p[1], &mut self.nodes);
+        for (value, &root) in self.values.iter_mut().zip(&self.set.roots) {
+            *value = self.nodes[root];
+        }
+        &self.values
+    }
+
+    /// Every member's value at `p`, or the first member (in the set's
+    /// order) refused there: its key and the reason, as
+    /// [`Expression::check_finite_at`] words it.
+    pub fn finite_at(&mut self, p: [f64; 2]) -> Result<&[f64], (&'s str, String)> {
+        let set = self.set;
+        self.at(p);
+        if self.values.iter().all(|&v| accepted(v)) {
+            return Ok(&self.values);
+        }
+        for ((key, e), &v) in set.members.iter().zip(&self.values) {
+            if let Some(reason) = e.refusal(key, p, v) {
+                return Err((key.as_str(), reason));
+            }
+        }
+        Ok(&self.values)
     }
 }
 
@@ -1495,6 +1713,46 @@ mod tests {
             .check_finite_at("load.g", [])
             .unwrap_err();
         assert!(m.contains("beyond"), "{m}");
+    }
+
+    /// A set's members evaluated together give each member's own value, bit
+    /// for bit, from one tree that holds their shared nodes once; a refused
+    /// value names its member's key and the point.
+    #[test]
+    fn a_set_evaluates_its_members_together() {
+        let u = Expression::parse("if(r <= 0.7, sqrt(1 - r^2), -0.68*ln(r) + 0.47)").unwrap();
+        let members = vec![
+            ("u".to_string(), u.clone()),
+            (
+                "lambda".to_string(),
+                Expression::parse("(2 - r^2)/(1 - r^2)^1.5").unwrap(),
+            ),
+            ("dx".to_string(), u.derivative(Variable::X).unwrap()),
+            ("dy".to_string(), u.derivative(Variable::Y).unwrap()),
+            ("c".to_string(), Expression::constant(2.5)),
+        ];
+        let set = ExpressionSet::new(members.clone());
+        assert_eq!(set.len(), 5);
+        let separate: usize = members.iter().map(|(_, e)| e.tree.nodes.len()).sum();
+        let merged = set.program.initial.len();
+        assert!(merged < separate, "{merged} of {separate}");
+        let mut evaluator = set.evaluator();
+        for p in [[0.3, -0.2], [0.5, 0.6], [-0.1, 0.0]] {
+            let values = evaluator.finite_at(p).unwrap().to_vec();
+            for ((_, e), v) in members.iter().zip(&values) {
+                assert_eq!(v.to_bits(), e.eval(p).to_bits(), "{e} at {p:?}");
+            }
+        }
+        // λ is not finite beyond r = 1: its key, the point, the value.
+        let (key, m) = evaluator.finite_at([1.2, 0.0]).unwrap_err();
+        assert_eq!(key, "lambda");
+        assert!(
+            m.contains("(1.200000, 0.000000)") && m.contains("NaN"),
+            "{m}"
+        );
+        let (key, _) = set.check_finite_at([[0.1, 0.1], [0.0, 1.5]]).unwrap_err();
+        assert_eq!(key, "lambda");
+        assert!(set.check_finite_at([[0.1, 0.1]]).is_ok());
     }
 
     #[test]

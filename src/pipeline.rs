@@ -529,7 +529,7 @@ pub fn run_uniform(scene: &Scene, out: &Path, show_progress: bool) -> Result<Run
         &mut phase_end,
     )?;
 
-    let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report);
+    let (mut data, errors) = result_data(scene, system.as_ref(), &problem, &report)?;
     // The run's time so far, for tables built later from the file (`study --from-results`).
     data.solver_attrs.push((
         RUN_SECONDS.into(),
@@ -692,7 +692,7 @@ fn nested_start(
     let mut coarse = scene.clone();
     coarse.mesh.n = Some(n / 2);
     // A coarse level is a warm start: its errors against an exact solution
-    // (checked at every point of a degree-10 rule, then integrated) serve no one.
+    // (evaluated at every point of a degree-10 rule) serve no one.
     coarse.output.errors = false;
     let coarse_mesh = scene_mesh_in_temp(&coarse)?;
     let solved = solve_on(
@@ -782,17 +782,18 @@ pub fn results_on_solver_threads(
 
 /// What a solve writes: the model's results, the scene text, the errors
 /// against the exact solution (`output.errors`), the `/solver` group and,
-/// for an adaptive scene or the "estimator" plot, the estimator.
+/// for an adaptive scene or the "estimator" plot, the estimator. An exact
+/// solution refused where the errors evaluate it is an error.
 pub fn result_data(
     scene: &Scene,
     system: &dyn ModelSystem,
     problem: &ContactProblem,
     report: &SolveReport,
-) -> (ResultData, Option<ExactErrors>) {
+) -> Result<(ResultData, Option<ExactErrors>)> {
     let mut data = results_on_solver_threads(scene, system, problem, report);
     data.scene_text = scene.text.clone();
     let errors = if scene.output.errors {
-        system.exact_errors(problem, report)
+        system.exact_errors(problem, report, linear_options(&scene.solver).threads)?
     } else {
         None
     };
@@ -803,7 +804,7 @@ pub fn result_data(
     if scene.adapt.is_some() || scene.output.plots.contains(&PlotKind::Estimator) {
         add_estimator(&mut data, system, problem, report);
     }
-    (data, errors)
+    Ok((data, errors))
 }
 
 /// The model's a posteriori indicators as the cell field `estimator` and

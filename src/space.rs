@@ -290,10 +290,21 @@ impl<'m> Space<'m> {
     pub fn interpolate(&self, f: impl Fn([f64; 2]) -> f64) -> Vec<f64> {
         let mut c = vec![0.0; self.n_dofs()];
         let nodes = self.element.nodes();
+        // A vertex dof (dof v is vertex v, local nodes 0..3) is evaluated
+        // once, at the vertex itself, not once per triangle around it.
+        let first_in_triangle = match self.element {
+            Element::P0 => 0,
+            _ => {
+                for (v, &x) in self.mesh.vertices.iter().enumerate() {
+                    c[v] = f(x);
+                }
+                3
+            }
+        };
         for t in 0..self.mesh.n_triangles() {
             let g = TriangleGeometry::new(self.mesh, t);
             let (dofs, n) = self.element_dofs(t);
-            for i in 0..n {
+            for i in first_in_triangle..n {
                 c[dofs[i]] = f(g.point(nodes[i]));
             }
             match self.element {

@@ -99,10 +99,12 @@ fn hard_expressions_are_read_or_refused_by_key() {
     }
 }
 
-/// A scene's exact solution is checked where the errors evaluate it (u, λ and
-/// the exact ∇u at the degree-10 rule's points), before anything is solved.
+/// A scene's exact solution (u, λ and the exact ∇u) is checked where the
+/// errors evaluate it: at one point of the degree-10 rule per triangle
+/// before anything is solved, and at every point of the rule as the errors
+/// integrate it, after the solve; either way nothing is written.
 #[test]
-fn a_non_finite_exact_solution_is_refused_before_solving() {
+fn a_non_finite_exact_solution_is_refused_before_writing() {
     let dir = tmp();
     let out = dir.path().join("r.h5");
     for (set, key) in [
@@ -117,6 +119,17 @@ fn a_non_finite_exact_solution_is_refused_before_solving() {
         assert_one_error(&o, &[key, "at the point"], set);
         assert!(!out.exists());
     }
+    // The ball's vertices at n = 4 lie on the integers of (−2, 2)², where
+    // sin(πx) ≈ 0; the root is not real where |sin(πx)| > 1/2, between them,
+    // far from each triangle's first rule point (near a corner).
+    let between = "output.exact.lambda=\"sqrt(0.5 - abs(sin(pi*x)))\"";
+    let o = solve_scene("peers/ball", &out, &[between, "mesh.n=4"]);
+    assert_one_error(&o, &["output.exact.lambda", "NaN at the point"], between);
+    assert!(
+        !out.exists()
+            && !out.with_extension("xdmf").exists()
+            && !out.with_extension("msh").exists()
+    );
 }
 
 /// ψ₁ > ψ₂ somewhere, and boundary values outside [ψ₁, ψ₂]: refused before

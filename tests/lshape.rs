@@ -203,7 +203,7 @@ fn uzawa_on(
         "n = {n}: {} iterations",
         report.iterations
     );
-    let (data, _) = result_data(&scene, system.as_ref(), &problem, &report);
+    let (data, _) = result_data(&scene, system.as_ref(), &problem, &report).unwrap();
     drop(system);
     (report, data, mesh)
 }

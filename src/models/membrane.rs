@@ -13,18 +13,20 @@ use super::{
     SkeletonTransfers,
 };
 use crate::assembly::{
-    assemble_bilinear, assemble_linear, eliminate, integrate_per_triangle, laplace, lumped_mass,
-    mass, quadrature_points, DofNumbering,
+    assemble_bilinear, assemble_linear, eliminate, integrate_fields, laplace, lumped_mass, mass,
+    quadrature_points, DofNumbering, QuadPoint, ShapeValue,
 };
 use crate::error::{Error, Result};
+use crate::expression::{ExpressionSet, SetEvaluator};
 use crate::linalg::MatrixKind;
 use crate::mesh::{Hierarchy, Mesh};
 use crate::multigrid::P1Levels;
 use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
-use crate::scene::{ColdStartSpec, ElementPair, ExactSpec, Expression, ObstacleSpec, Scene};
+use crate::scene::{ColdStartSpec, ElementPair, Expression, ObstacleSpec, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
+use std::path::PathBuf;
 
 /// The membrane model as the stages around it see it ([`ModelKind`]).
 pub struct Membrane;
@@ -119,8 +121,11 @@ pub struct MembraneSystem<'m> {
     pub phi: Option<Vec<f64>>,
     /// ψ₂,h: the upper obstacle's P1 interpolant (two-sided scenes).
     pub upper: Option<Vec<f64>>,
-    /// The scene's exact solution (`[output.exact]`), when it states one.
-    pub exact: Option<ExactSpec>,
+    /// What the errors are measured against, when the scene asks for them
+    /// (`output.errors`) and one is known.
+    exact: Option<ExactSolution>,
+    /// The scene file, named by the errors found after setup.
+    source: PathBuf,
     /// u at every dof from the boundary values g_D (`mesh.dirichlet_value`);
     /// only the fixed dofs' entries are used. All 0 without boundary values.
     pub boundary_values: Vec<f64>,
@@ -167,9 +172,8 @@ impl<'m> MembraneSystem<'m> {
         };
         // ... and the estimator at its own rule's.
         let estimator_rule = TriangleRule::exact_for(super::estimator::ESTIMATOR_RULE);
-        let load_points = quadrature_points(mesh, &rule)
-            .into_iter()
-            .chain(quadrature_points(mesh, &estimator_rule));
+        let load_points =
+            quadrature_points(mesh, &rule).chain(quadrature_points(mesh, &estimator_rule));
         load.check_finite_at("load.g", load_points)
             .map_err(|r| expression_error("load.g", r))?;
         let p1 = Space::new(mesh, Element::P1);
@@ -229,24 +233,24 @@ impl<'m> MembraneSystem<'m> {
                 (Some(phi), upper)
             }
         };
-        if scene.output.errors {
-            check_exact_solution_applies(mesh, scene, tags.is_none())?;
-        }
-        if let (Some(exact), true) = (&scene.output.exact, scene.output.errors) {
-            // Checked where the errors evaluate them, before anything is solved.
-            let points = exact_error_points(mesh);
-            let gradient = exact_gradient(exact)
-                .map_err(|reason| expression_error("output.exact.u", reason))?;
-            let keyed = [
-                ("output.exact.u", &exact.u),
-                ("output.exact.lambda", &exact.lambda),
-                ("output.exact.u (∂u/∂x)", &gradient[0]),
-                ("output.exact.u (∂u/∂y)", &gradient[1]),
-            ];
-            for (key, e) in keyed {
-                e.check_finite_at(key, points.iter().copied())
-                    .map_err(|reason| expression_error(key, reason))?;
+        let exact = match scene.output.errors {
+            false => None,
+            true => {
+                check_exact_solution_applies(mesh, scene, tags.is_none())?;
+                ExactSolution::of(scene, &load)
+                    .map_err(|reason| expression_error("output.exact.u", reason))?
             }
+        };
+        if let Some(ExactSolution::Given { set, .. }) = &exact {
+            // Checked only where the errors evaluate it (∇u may be singular
+            // at a vertex: a re-entrant corner): before anything is solved
+            // at the error rule's first point in each triangle, then at
+            // every point as the errors integrate it (`exact_errors`).
+            let first = TriangleRule::exact_for(EXACT_ERROR_RULE).points[0];
+            let points =
+                (0..mesh.n_triangles()).map(|t| TriangleGeometry::new(mesh, t).point(first));
+            set.check_finite_at(points)
+                .map_err(|(key, reason)| expression_error(key, reason))?;
         }
         let mut simulated = vec!["load".to_string(), "dirichlet".to_string()];
         if scene.obstacle.is_some() {
@@ -263,7 +267,8 @@ impl<'m> MembraneSystem<'m> {
             phi,
             upper,
             boundary_values,
-            exact: scene.output.exact.clone(),
+            exact,
+            source: scene.source.clone(),
             simulated,
         };
         system.check_rows_ordered(scene)?;
@@ -350,25 +355,28 @@ impl<'m> MembraneSystem<'m> {
 }
 
 /// What errors are measured against: the disk's radial solution or a
-/// scene's, with the exact gradient of its u (the expression differentiated).
+/// scene's `[output.exact]`, whose u, λ and exact ∇u (u's expression
+/// differentiated) are evaluated together at each point.
 enum ExactSolution {
     Radial(RadialObstacle),
     Given {
-        spec: Box<ExactSpec>,
-        grad_u: Box<[Expression; 2]>,
+        /// u, λ, ∂u/∂x, ∂u/∂y, under the keys that name them in errors.
+        set: ExpressionSet,
+        contact_radius: f64,
     },
 }
 
-/// ∇u of a scene's exact solution, exactly (`Expression::derivative`).
-fn exact_gradient(spec: &ExactSpec) -> std::result::Result<[Expression; 2], String> {
-    use crate::expression::Variable::{X, Y};
-    Ok([spec.u.derivative(X)?, spec.u.derivative(Y)?])
+/// An exact solution at one point.
+struct ExactValues {
+    u: f64,
+    grad_u: [f64; 2],
+    lambda: f64,
 }
 
-/// The points where the errors against an exact solution evaluate it: the
-/// degree-10 rule of [`MembraneSystem::exact_errors`].
-fn exact_error_points(mesh: &Mesh) -> Vec<[f64; 2]> {
-    quadrature_points(mesh, &TriangleRule::exact_for(EXACT_ERROR_RULE))
+/// Evaluates an exact solution point by point.
+enum ExactEvaluator<'a> {
+    Radial(&'a RadialObstacle),
+    Given(SetEvaluator<'a>),
 }
 
 /// The exact solution is not polynomial (ln r, and a kink of u'' at r = a):
@@ -376,31 +384,68 @@ fn exact_error_points(mesh: &Mesh) -> Vec<[f64; 2]> {
 const EXACT_ERROR_RULE: usize = 10;
 
 impl ExactSolution {
-    fn u(&self, x: [f64; 2]) -> f64 {
-        match self {
-            ExactSolution::Radial(e) => e.u(x),
-            ExactSolution::Given { spec, .. } => spec.u.eval(x),
+    /// The scene's `[output.exact]`, else the radial solution of the disk
+    /// case (a paraboloid obstacle, a constant load); None when neither
+    /// applies. The error is why u's expression has no derivative.
+    fn of(scene: &Scene, load: &Expression) -> std::result::Result<Option<Self>, String> {
+        use crate::expression::Variable::{X, Y};
+        if let Some(given) = &scene.output.exact {
+            let members = [
+                ("output.exact.u", given.u.clone()),
+                ("output.exact.lambda", given.lambda.clone()),
+                ("output.exact.u (∂u/∂x)", given.u.derivative(X)?),
+                ("output.exact.u (∂u/∂y)", given.u.derivative(Y)?),
+            ];
+            let set = ExpressionSet::new(members.map(|(key, e)| (key.to_string(), e)).into());
+            return Ok(Some(ExactSolution::Given {
+                set,
+                contact_radius: given.contact_radius,
+            }));
         }
+        let radial = match (&scene.obstacle, load.as_constant()) {
+            (Some(obstacle), Some(g))
+                if obstacle.shape == crate::scene::ObstacleShape::Paraboloid =>
+            {
+                RadialObstacle::new(g, obstacle.level(), obstacle.curvature.unwrap_or(0.0))
+            }
+            _ => None,
+        };
+        Ok(radial.map(ExactSolution::Radial))
     }
 
-    fn grad_u(&self, x: [f64; 2]) -> [f64; 2] {
+    fn evaluator(&self) -> ExactEvaluator<'_> {
         match self {
-            ExactSolution::Radial(e) => e.grad_u(x),
-            ExactSolution::Given { grad_u, .. } => [grad_u[0].eval(x), grad_u[1].eval(x)],
-        }
-    }
-
-    fn lambda(&self, x: [f64; 2]) -> f64 {
-        match self {
-            ExactSolution::Radial(e) => e.lambda(x),
-            ExactSolution::Given { spec, .. } => spec.lambda.eval(x),
+            ExactSolution::Radial(e) => ExactEvaluator::Radial(e),
+            ExactSolution::Given { set, .. } => ExactEvaluator::Given(set.evaluator()),
         }
     }
 
     fn contact_radius(&self) -> f64 {
         match self {
             ExactSolution::Radial(e) => e.a,
-            ExactSolution::Given { spec, .. } => spec.contact_radius,
+            ExactSolution::Given { contact_radius, .. } => *contact_radius,
+        }
+    }
+}
+
+impl<'a> ExactEvaluator<'a> {
+    /// The values at x; a scene's values are checked finite
+    /// ([`SetEvaluator::finite_at`]: the key of a refused one and why).
+    fn at(&mut self, x: [f64; 2]) -> std::result::Result<ExactValues, (&'a str, String)> {
+        match self {
+            ExactEvaluator::Radial(e) => Ok(ExactValues {
+                u: e.u(x),
+                grad_u: e.grad_u(x),
+                lambda: e.lambda(x),
+            }),
+            ExactEvaluator::Given(evaluator) => match *evaluator.finite_at(x)? {
+                [u, lambda, dx, dy] => Ok(ExactValues {
+                    u,
+                    grad_u: [dx, dy],
+                    lambda,
+                }),
+                _ => unreachable!("the four members of `ExactSolution::of`"),
+            },
         }
     }
 }
@@ -454,7 +499,8 @@ fn check_exact_solution_applies(
         Err(scene.error("output.errors", format!("errors are measured against the exact solution on the unit disk (docs/formulation.md §1), but {reason}")))
     };
     if scene.output.exact.is_some() {
-        // The scene states its exact solution (checked finite in `ExactSolution::of`).
+        // The scene states its exact solution (checked finite where the
+        // errors evaluate it: in `setup` and `exact_errors`).
         return Ok(());
     }
     if !dirichlet_everywhere {
@@ -578,35 +624,43 @@ impl ModelSystem for MembraneSystem<'_> {
     }
 
     /// Errors against the exact solution: the scene's `[output.exact]`, or
-    /// the radial one when the scene is the disk case.
-    fn exact_errors(&self, problem: &ContactProblem, report: &SolveReport) -> Option<ExactErrors> {
-        let (obstacle, constraint) = (self.obstacle.as_ref()?, problem.constraint.as_ref()?);
-        let exact = match &self.exact {
-            Some(given) => ExactSolution::Given {
-                spec: Box::new(given.clone()),
-                grad_u: Box::new(exact_gradient(given).ok()?),
-            },
-            None if obstacle.shape == crate::scene::ObstacleShape::Paraboloid => {
-                ExactSolution::Radial(RadialObstacle::new(
-                    self.load.as_constant()?,
-                    obstacle.level(),
-                    obstacle.curvature.unwrap_or(0.0),
-                )?)
-            }
-            None => return None,
+    /// the radial one when the scene is the disk case. One pass over the
+    /// degree-10 rule's points evaluates the exact solution once at each and
+    /// checks a scene's values finite there: a refused value is an error
+    /// naming its key and the point.
+    fn exact_errors(
+        &self,
+        problem: &ContactProblem,
+        report: &SolveReport,
+        threads: usize,
+    ) -> Result<Option<ExactErrors>> {
+        let (Some(exact), Some(_), Some(constraint)) =
+            (&self.exact, &self.obstacle, &problem.constraint)
+        else {
+            return Ok(None);
         };
         let u = self.u_coefficients(report);
         let rule = TriangleRule::exact_for(EXACT_ERROR_RULE);
-        let l2 = integrate_per_triangle(&self.u_space, &u, &rule, |uh, p| {
-            (uh.value - exact.u(p.x)).powi(2)
-        });
-        let h1 = integrate_per_triangle(&self.u_space, &u, &rule, |uh, p| {
-            let e = exact.grad_u(p.x);
-            (uh.grad[0] - e[0]).powi(2) + (uh.grad[1] - e[1]).powi(2)
-        });
-        let lam = integrate_per_triangle(&self.lambda_space, &report.lambda, &rule, |lh, p| {
-            (lh.value - exact.lambda(p.x)).powi(2)
-        });
+        let fields = [
+            (&self.u_space, &u[..]),
+            (&self.lambda_space, &report.lambda[..]),
+        ];
+        let [l2, h1, lam] = integrate_fields(fields, &rule, threads, || {
+            let mut evaluator = exact.evaluator();
+            move |&[uh, lh]: &[ShapeValue; 2], p: &QuadPoint| {
+                let e = evaluator.at(p.x)?;
+                Ok::<_, (&str, String)>([
+                    (uh.value - e.u).powi(2),
+                    (uh.grad[0] - e.grad_u[0]).powi(2) + (uh.grad[1] - e.grad_u[1]).powi(2),
+                    (lh.value - e.lambda).powi(2),
+                ])
+            }
+        })
+        .map_err(|(key, reason)| Error::Scene {
+            file: self.source.clone(),
+            field: key.into(),
+            reason,
+        })?;
         let area: f64 = report
             .contact()
             .iter()
@@ -614,13 +668,13 @@ impl ModelSystem for MembraneSystem<'_> {
             .filter(|(in_contact, _)| **in_contact)
             .map(|(_, w)| w)
             .sum();
-        Some(ExactErrors {
-            l2: l2.iter().sum::<f64>().sqrt(),
-            h1: h1.iter().sum::<f64>().sqrt(),
-            lambda_l2: lam.iter().sum::<f64>().sqrt(),
+        Ok(Some(ExactErrors {
+            l2: l2.sqrt(),
+            h1: h1.sqrt(),
+            lambda_l2: lam.sqrt(),
             contact_radius: (area / std::f64::consts::PI).sqrt(),
             exact_contact_radius: exact.contact_radius(),
-        })
+        }))
     }
 
     /// The residual estimator of docs/formulation.md §8 (`models::estimator`).

@@ -123,13 +123,17 @@ pub trait ModelSystem {
     /// result file stores them (values at fixed dofs are dropped). How a
     /// solution computed elsewhere (the FreeFEM twin) becomes a result.
     fn primal_from_dofs(&self, dofs: &[(String, Vec<f64>)]) -> Result<Vec<f64>>;
-    /// Errors against an exact solution, when the scene has one and asks for it.
+    /// Errors against an exact solution, when the scene has one and asks
+    /// for it, integrated on `threads` (`solver.threads`); an error when the
+    /// exact solution is refused where it is evaluated (a scene's
+    /// expression not finite there).
     fn exact_errors(
         &self,
         _problem: &ContactProblem,
         _report: &SolveReport,
-    ) -> Option<ExactErrors> {
-        None
+        _threads: usize,
+    ) -> Result<Option<ExactErrors>> {
+        Ok(None)
     }
     /// The a posteriori error indicator η_T of every triangle
     /// (docs/formulation.md §8), when the model has one.

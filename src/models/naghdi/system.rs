@@ -473,7 +473,8 @@ impl<'m> NaghdiSystem<'m> {
         // `gap_origin` probe evaluates the obstacle.
         let estimator_rule = TriangleRule::exact_for(crate::models::estimator::ESTIMATOR_RULE);
         let locator = PointLocator::new(mesh);
-        let mut rule_points = quadrature_points(mesh, &TriangleRule::exact_for(5));
+        let mut rule_points: Vec<[f64; 2]> =
+            quadrature_points(mesh, &TriangleRule::exact_for(5)).collect();
         rule_points.extend(quadrature_points(mesh, &estimator_rule));
         if locator.locate([0.0, 0.0]).is_some() {
             rule_points.push([0.0, 0.0]);
