@@ -33,7 +33,10 @@ pub struct Estimate {
 pub fn estimate(scene: &Scene, triangles: f64) -> Estimate {
     let model = models::kind(scene.model);
     let unknowns = triangles * model.unknowns_per_triangle(scene.element);
-    let bytes_per_unknown = model.bytes_per_unknown(scene.solver.condense);
+    let bytes_per_unknown = match scene.solver.method {
+        crate::scene::Method::Multigrid => model.multigrid_bytes_per_unknown(),
+        _ => model.bytes_per_unknown(scene.solver.condense),
+    };
     Estimate {
         triangles,
         unknowns,

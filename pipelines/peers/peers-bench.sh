@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # `make peers-bench` (issue 45): Bueler's ball obstacle (pipelines/scenes/peers/ball.toml)
 # solved by PETSc's SNESVI (pipelines/peers/petsc/ball.c: reduced-space active set,
-# multigrid, grid sequencing from a 5 × 5 grid) and by ours (active set, nested start)
-# on N × N vertices for each N of SIZES; one process per run.
+# multigrid, grid sequencing from a 5 × 5 grid) and by ours (Newton multigrid, grid
+# sequencing from the 4 × 4-cell rectangle: pipelines/scenes/peers/ball-multigrid.toml)
+# on N × N vertices for each N of SIZES; one process per run, the same K refinements.
 #
 #   peers-bench.sh BIN PETSC_BALL OUT_DIR N...    (each N − 1 = 4 · 2^K)
 #
@@ -18,7 +19,7 @@ set -uo pipefail
 [ $# -ge 4 ] || { echo "usage: $0 BIN PETSC_BALL OUT_DIR N..." >&2; exit 2; }
 bin=$1 ball=$2 out=$3
 shift 3
-scene=pipelines/scenes/peers/ball.toml
+scene=pipelines/scenes/peers/ball-multigrid.toml
 mkdir -p "$out"
 csv=$out/table.csv md=$out/table.md notes=$out/notes.txt cpu=$out/cpu.csv
 echo "code,vertices,wall_seconds,max_error,iterations,peak_rss_mb" > "$csv"
@@ -76,16 +77,21 @@ for n in "$@"; do
         echo "petsc $n failed $(tail -n 1 "$base.log")" >> "$notes"
     fi
 
-    # Ours: the same vertices (mesh.n = N − 1 cells per side), active set, nested start.
+    # Ours: the same vertices, the 4 × 4-cell rectangle refined K times, multigrid.
     base=$out/obstacle-$n
-    echo "peers-bench: obstacle, $n × $n (mesh.n = $(( n - 1 )), nested)" >&2
-    if /usr/bin/time -f "%e %M %U %S" -o "$base.time" "$bin" solve "$scene" --set mesh.n=$(( n - 1 )) \
-            --set solver.method=active-set --set solver.nested=true --set mesh.memory_limit_gb="$memory_gb" --set 'output.plots=[]' \
-            --quiet --out "$base.h5" > "$base.log" 2>&1 && error=$(max_error "$base.h5"); then
+    echo "peers-bench: obstacle, $n × $n (mesh.n = 4, mesh.refine = $k, multigrid)" >&2
+    if /usr/bin/time -f "%e %M %U %S" -o "$base.time" "$bin" solve "$scene" --set mesh.refine=$k \
+            --set mesh.memory_limit_gb="$memory_gb" --quiet --out "$base.h5" > "$base.log" 2>&1 &&
+        error=$(max_error "$base.h5"); then
         read -r wall rss cpus <<< "$(timing "$base.time")"
         its=$("$bin" info "$base.h5" | awk -F' = ' '$1 == "  iterations" { print $2; exit }')
         echo "obstacle,$vertices,$wall,$error,$its,$rss" >> "$csv"
         echo "obstacle,$vertices,$cpus" >> "$cpu"
+        # Newton steps per level (/solver newton_steps_level_L), coarsest first.
+        steps=$(for l in $(seq 0 "$k"); do
+            h5dump -a "/solver/newton_steps_level_$l" "$base.h5" | awk '/\(0\)/ { print $2 }'
+        done | tr '\n' ' ')
+        echo "obstacle $n levels $steps" >> "$notes"
     else
         read -r wall rss cpus <<< "$(timing "$base.time")"
         echo "obstacle,$vertices,$wall,,,$rss" >> "$csv"
@@ -106,7 +112,7 @@ awk -F, -v notes="$notes" -v cpufile="$cpu" -v memgb="$memory_gb" -v load="load 
     function cell(code, v, i) { return !ok(code, v) ? (i == 3 ? "failed" : "–") : val[code, v, i] }
     function wall(code, v) { return cell(code, v, 3) ((code, v) in cpu ? " (" cpu[code, v] ")" : "") }
     END {
-        print "# Ball obstacle: PETSc SNESVI (mg, grid sequencing) and obstacle (active set, nested)"
+        print "# Ball obstacle: PETSc SNESVI (mg, grid sequencing) and obstacle (Newton multigrid, grid sequencing)"
         print ""
         print "Whole-process wall time (s; in parentheses its CPU time, user + system), max |u − u_exact| over the vertices, Newton iterations on the finest level, peak RSS (MB); ratio = ours / PETSc; " load "; our memory guard'"'"'s limit " memgb " GB."
         print ""
@@ -119,7 +125,7 @@ awk -F, -v notes="$notes" -v cpufile="$cpu" -v memgb="$memory_gb" -v load="load 
                 cell("petsc", v, 5), cell("obstacle", v, 5), cell("petsc", v, 6), cell("obstacle", v, 6), ratio(v, 6)
         }
         print ""
-        print "PETSc Newton iterations per level (coarsest 5² first) and in all; runs that failed:"
+        print "Newton iterations per level (coarsest first: PETSc 5², ours 5² vertices) and in all; runs that failed:"
         print ""
         for (j = 0; j < n; j++) { side = sqrt(order[j])
             if (("petsc," side) in note) print "- PETSc " side "²: " note["petsc," side]

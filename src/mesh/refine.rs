@@ -164,11 +164,26 @@ impl Mesh {
             let (p, q) = (self.vertices[a], self.vertices[b]);
             [0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1])]
         }));
-        let lookup = self.edge_lookup();
+        // The boundary edges' indices among all edges (a map of the few
+        // boundary edges, not of all of them).
+        let wanted: super::VertexMap<[usize; 2], usize> = self
+            .boundary_edges
+            .iter()
+            .enumerate()
+            .map(|(l, be)| {
+                let [a, b] = be.vertices;
+                ([a.min(b), a.max(b)], l)
+            })
+            .collect();
+        let mut edge_of_boundary = vec![0usize; self.boundary_edges.len()];
+        for (e, key) in self.edges.iter().enumerate() {
+            if let Some(&l) = wanted.get(key) {
+                edge_of_boundary[l] = e;
+            }
+        }
         let mut boundary_edges = Vec::with_capacity(2 * self.boundary_edges.len());
-        for be in &self.boundary_edges {
+        for (be, &e) in self.boundary_edges.iter().zip(&edge_of_boundary) {
             let [a, b] = be.vertices;
-            let e = lookup[&[a.min(b), a.max(b)]];
             let m = n + e;
             vertices[m] = geometry.place(be.tag, vertices[m]);
             boundary_edges.push(BoundaryEdge {

@@ -147,7 +147,8 @@ pub(super) fn build(
     }
 
     // Duplicate triangles (same vertex set).
-    let mut seen: HashMap<[usize; 3], usize> = HashMap::with_capacity(triangles.len());
+    let mut seen: VertexMap<[usize; 3], usize> =
+        VertexMap::with_capacity_and_hasher(triangles.len(), Default::default());
     for (t, tri) in triangles.iter().enumerate() {
         let mut key = *tri;
         key.sort_unstable();
@@ -179,7 +180,8 @@ pub(super) fn build(
     }
 
     // Edges, in order of first appearance.
-    let mut edge_index: HashMap<[usize; 2], usize> = HashMap::with_capacity(2 * triangles.len());
+    let mut edge_index: VertexMap<[usize; 2], usize> =
+        VertexMap::with_capacity_and_hasher(2 * triangles.len(), Default::default());
     let mut edges: Vec<[usize; 2]> = Vec::with_capacity(2 * triangles.len());
     // For each edge: the triangles that hold it and the direction in the first one.
     let mut edge_tris: Vec<(usize, Option<usize>, bool)> = Vec::with_capacity(2 * triangles.len());

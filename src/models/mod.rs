@@ -34,6 +34,11 @@ pub trait ModelKind {
     /// Bytes per unknown of a whole run (assembly, factorisation, iteration,
     /// output), `condensed` or not (`solver.condense`).
     fn bytes_per_unknown(&self, condensed: bool) -> f64;
+    /// Bytes per unknown of a whole run by the multigrid method
+    /// (`solver.method = "multigrid"`), the levels included.
+    fn multigrid_bytes_per_unknown(&self) -> f64 {
+        self.bytes_per_unknown(true)
+    }
     /// The scene key named for a non-finite or singular matrix, and the keys
     /// (in prose) that build it.
     fn matrix_inputs(&self) -> (&'static str, &'static str);
