@@ -13,8 +13,8 @@ use super::{
     SkeletonTransfers,
 };
 use crate::assembly::{
-    assemble_bilinear, assemble_linear, eliminate, integrate_fields, laplace, lumped_mass, mass,
-    quadrature_points, DofNumbering, QuadPoint, ShapeValue,
+    assemble_bilinear, assemble_bilinear_eliminated, assemble_linear, eliminate, integrate_fields,
+    laplace, lumped_mass, mass, quadrature_points, DofNumbering, QuadPoint, ShapeValue,
 };
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionSet, SetEvaluator};
@@ -570,10 +570,17 @@ impl ModelSystem for MembraneSystem<'_> {
         let rule = TriangleRule::exact_for(MEMBRANE_RULE);
         let g = &self.load;
         let u = &self.u_space;
-        let k_full = assemble_bilinear(u, u, &rule, laplace);
         // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
         let fixed_values = &self.boundary_values;
-        let (k, shift) = eliminate(k_full, &self.numbering, &self.numbering, fixed_values);
+        let (k, shift) = assemble_bilinear_eliminated(
+            u,
+            u,
+            &rule,
+            laplace,
+            &self.numbering,
+            &self.numbering,
+            fixed_values,
+        );
         let f_full = match g.as_constant() {
             Some(g) => assemble_linear(u, &rule, |v, _| g * v.value),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
@@ -618,7 +625,7 @@ impl ModelSystem for MembraneSystem<'_> {
         };
         let bubbles: Vec<usize> = u.bubble_start().into_iter().collect();
         Ok(ContactProblem {
-            matrix: k.into_sparse(),
+            matrix: k,
             kind: MatrixKind::SymmetricPositiveDefinite,
             n_primal: rhs.len(),
             rhs,

@@ -24,7 +24,10 @@
 //! KKT point, and the solve stops on the same relative KKT measure as the
 //! other methods (`solvers::measures`), computed on the whole problem.
 //!
-//! **Newton.** Semismooth Newton on J with Armijo backtracking. Each step's
+//! **Newton.** Semismooth Newton on J with Armijo backtracking (a step that
+//! keeps the active set is taken whole: J is then the quadratic CG solved
+//! for, and decreases by ½ δᵀHδ, below the round-off of J's change near the
+//! solution). Each step's
 //! H δ = −∇J is solved by conjugate gradients preconditioned by one
 //! V-cycle (`multigrid::Multigrid`) whose level operators are the Galerkin
 //! operators of H: K's, set up once per level, plus each active row's
@@ -820,6 +823,12 @@ fn solve_level(
         let (trial, next) = loop {
             let trial: Vec<f64> = u.iter().zip(&delta).map(|(a, d)| a + t * d).collect();
             let next = condensed.clamp(&trial);
+            // On the same active set J is the quadratic whose Hessian CG
+            // solved with: a CG step decreases it by ½ δᵀHδ > 0, and near the
+            // solution that decrease lies below the round-off of J's change.
+            if next.active == clamped.active {
+                break (trial, next);
+            }
             let change = condensed.change_along(&clamped, &next, t, residual_slope, curvature);
             if change <= 1e-4 * t * slope {
                 break (trial, next);
