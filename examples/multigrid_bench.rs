@@ -14,9 +14,12 @@ use obstacle_fem::mesh::{Hierarchy, Mesh};
 use obstacle_fem::multigrid::{
     p1_load, p1_stiffness, pcg, Multigrid, MultigridOptions, P1Levels, Smoother,
 };
+#[path = "common/child_case.rs"]
+mod child_case;
+
+use child_case::child_output;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::Command;
 use std::time::Instant;
 
 /// Relative residual ‖b − A x‖₂/‖b‖₂ both iterative solvers stop at.
@@ -43,20 +46,8 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for n in sizes {
         let case = |method: &str| -> BTreeMap<String, String> {
-            let out = Command::new(&exe)
-                .args(["--case", &n.to_string(), method])
-                .output()
-                .expect("run a case");
-            assert!(
-                out.status.success(),
-                "{method} at {n}: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            String::from_utf8_lossy(&out.stdout)
-                .split_whitespace()
-                .filter_map(|kv| kv.split_once('='))
-                .map(|(k, v)| (k.to_string(), v.to_string()))
-                .collect()
+            let args = ["--case".to_string(), n.to_string(), method.to_string()];
+            child_output(&exe, &args, &format!("{method} at {n}"))
         };
         let (mg, direct) = (case("mg"), case("direct"));
         let f = |m: &BTreeMap<String, String>, k: &str| -> f64 { m[k].parse().unwrap() };

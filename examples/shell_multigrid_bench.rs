@@ -24,14 +24,17 @@ use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::guards::peak_rss_kb;
 use obstacle_fem::linalg::{factor_once, LinearOptions, MatrixKind, Solves, SystemPattern};
 use obstacle_fem::mesh::{BoundaryGeometry, Hierarchy, Mesh};
-use obstacle_fem::models::naghdi::system::NaghdiSystem;
+use obstacle_fem::models::naghdi::system::{field_prolongations, NaghdiSystem};
 use obstacle_fem::models::ModelSystem;
-use obstacle_fem::multigrid::{pcg, FieldLevel, Multigrid, MultigridOptions, P2FieldLevels};
+use obstacle_fem::multigrid::{pcg, Multigrid, MultigridOptions};
 use obstacle_fem::scene::Scene;
 use obstacle_fem::solvers::ContactProblem;
+#[path = "common/child_case.rs"]
+mod child_case;
+
+use child_case::child_output;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::Command;
 use std::time::Instant;
 
 /// Relative residual ‖b − A x‖₂/‖b‖₂ PCG stops at.
@@ -88,21 +91,12 @@ fn main() {
     for &t in &thicknesses {
         for &n in &sizes {
             let case = |method: &str| -> BTreeMap<String, String> {
-                let out = Command::new(&exe)
-                    .args(["--case", &n.to_string(), &t.to_string()])
-                    .args([&smoothing.to_string(), method])
-                    .output()
-                    .expect("run a case");
-                assert!(
-                    out.status.success(),
-                    "{method} at N = {n}, t = {t}: {}",
-                    String::from_utf8_lossy(&out.stderr)
-                );
-                String::from_utf8_lossy(&out.stdout)
-                    .split_whitespace()
-                    .filter_map(|kv| kv.split_once('='))
-                    .map(|(k, v)| (k.to_string(), v.to_string()))
-                    .collect()
+                let args = ["--case", &n.to_string(), &t.to_string()]
+                    .into_iter()
+                    .map(String::from)
+                    .chain([smoothing.to_string(), method.to_string()])
+                    .collect::<Vec<_>>();
+                child_output(&exe, &args, &format!("{method} at N = {n}, t = {t}"))
             };
             let (mg, direct) = (case("mg"), case("direct"));
             let f = |m: &BTreeMap<String, String>, k: &str| -> f64 { m[k].parse().unwrap() };
@@ -190,19 +184,7 @@ fn run_multigrid(
         .map(|m| NaghdiSystem::setup(m, scene).expect("shell setup"))
         .collect();
     let systems: Vec<&NaghdiSystem> = coarser.iter().chain([&finest]).collect();
-    let offsets: Vec<Vec<usize>> = systems
-        .iter()
-        .map(|s| s.layout.fields.iter().map(|f| f.offset).collect())
-        .collect();
-    let levels: Vec<FieldLevel> = systems
-        .iter()
-        .zip(&offsets)
-        .map(|(s, offsets)| FieldLevel {
-            offsets,
-            numbering: &s.numbering,
-        })
-        .collect();
-    let shell_levels = P2FieldLevels::new(hierarchy, &levels).expect("prolongations");
+    let shell_levels = field_prolongations(hierarchy, &systems).expect("prolongations");
     let mg = Multigrid::new(
         problem.matrix,
         shell_levels.prolongations,

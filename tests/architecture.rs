@@ -134,6 +134,13 @@ fn fe_machinery_knows_no_models_scenes_or_solvers() {
         "mesh/ does not run gmsh",
         only_imports("mesh/", &["error", "output"]),
     );
+    assert_none(
+        "multigrid/ builds prolongations from meshes and spaces; its V-cycle is linalg's",
+        only_imports(
+            "multigrid/",
+            &["error", "mesh", "quadrature", "space", "assembly", "linalg"],
+        ),
+    );
 }
 
 #[test]
@@ -169,6 +176,7 @@ fn models_run_no_solver_and_read_no_files() {
             "quadrature",
             "space",
             "assembly",
+            "multigrid",
             "linalg",
             "scene",
             "expression",

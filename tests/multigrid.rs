@@ -13,11 +13,11 @@ use faer::sparse::SparseColMat;
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::linalg::{factor_once, LinearOptions, MatrixKind, Solves, SystemPattern};
 use obstacle_fem::mesh::{BoundaryGeometry, Hierarchy, Mesh};
-use obstacle_fem::models::naghdi::system::NaghdiSystem;
+use obstacle_fem::models::naghdi::system::{field_prolongations, NaghdiSystem};
 use obstacle_fem::models::ModelSystem;
 use obstacle_fem::multigrid::{
-    p1_load, p1_stiffness, p2_prolongation, pcg, FieldLevel, Multigrid, MultigridOptions, P1Levels,
-    P2FieldLevels, Smoother, SweepOrder,
+    p1_load, p1_stiffness, p2_prolongation, pcg, Multigrid, MultigridOptions, P1Levels, Smoother,
+    SweepOrder,
 };
 use obstacle_fem::scene::Scene;
 use std::f64::consts::PI;
@@ -446,19 +446,7 @@ fn shell_multigrid_preconditions_the_thick_shell() {
             .iter()
             .map(|m| NaghdiSystem::setup(m, &scene).unwrap())
             .collect();
-        let offsets: Vec<Vec<usize>> = systems
-            .iter()
-            .map(|s| s.layout.fields.iter().map(|f| f.offset).collect())
-            .collect();
-        let levels: Vec<FieldLevel> = systems
-            .iter()
-            .zip(&offsets)
-            .map(|(s, offsets)| FieldLevel {
-                offsets,
-                numbering: &s.numbering,
-            })
-            .collect();
-        let shell = P2FieldLevels::new(&h, &levels).unwrap();
+        let shell = field_prolongations(&h, &systems.iter().collect::<Vec<_>>()).unwrap();
         let problem = systems[refinements].assemble().unwrap();
         // Coarser levels are P2 alone: their free dofs less the bubbles.
         for l in 0..refinements {

@@ -12,16 +12,23 @@
 //! - [`reuse`]: what a factoriser keeps between matrices that differ only
 //!   in declared entries (the active set's steps);
 //! - [`tree_ldlt`]: the supernodal LDLᵀ and its solves on two threads;
-//! - [`linear_solver`]: the seam (analyse → factor → solve).
+//! - [`linear_solver`]: the seam (analyse → factor → solve);
+//! - [`vcycle`]: [`Multigrid`], the V-cycle of an SPD matrix given the
+//!   prolongations of a nested hierarchy (Galerkin coarse operators,
+//!   Gauss–Seidel or damped Jacobi, the coarsest level through the seam), as
+//!   a solver and a preconditioner; [`pcg`]: conjugate gradients with it.
+//!   Both know no meshes (`crate::multigrid` builds the prolongations).
 
 mod analysis;
 mod condensed;
 mod kernels;
 mod linear_solver;
 mod numeric;
+mod pcg;
 mod reuse;
 mod solve;
 mod tree_ldlt;
+mod vcycle;
 
 pub use condensed::InteriorGroups;
 pub use kernels::{
@@ -36,7 +43,9 @@ pub use numeric::{
     factorize_checked, factorize_checked_with, keep_freed_memory, Changed, CondensedFactorization,
     Factorization, MatrixKind, RegularizedLdlt, ReusableFactorization, Solves,
 };
+pub use pcg::{pcg, CgReport};
 pub use solve::refine;
+pub use vcycle::{CycleReport, Multigrid, MultigridOptions, Smoother, SweepOrder};
 
 // What the modules read of each other through this one.
 use analysis::OrderedEntries;

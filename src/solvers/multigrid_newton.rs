@@ -49,7 +49,7 @@ use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{mat_vec, MatrixKind};
-use crate::multigrid::{Multigrid, MultigridOptions};
+use crate::linalg::{Multigrid, MultigridOptions};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::Arc;
 use std::time::Instant;

@@ -1170,3 +1170,25 @@ fn plot_constraint(path: &Path, mesh: &Mesh, w: &[f64], phi: &[f64], title: &str
         &format!("{title}: profiles"),
     )
 }
+
+/// The P2 prolongations between shell systems set up on the levels of
+/// `hierarchy` (coarsest first): each system's fields by their offsets and
+/// free-dof numbering (`multigrid::P2FieldLevels`).
+pub fn field_prolongations(
+    hierarchy: &crate::mesh::Hierarchy,
+    systems: &[&NaghdiSystem],
+) -> Result<crate::multigrid::P2FieldLevels> {
+    let offsets: Vec<Vec<usize>> = systems
+        .iter()
+        .map(|s| s.layout.fields.iter().map(|f| f.offset).collect())
+        .collect();
+    let levels: Vec<crate::multigrid::FieldLevel> = systems
+        .iter()
+        .zip(&offsets)
+        .map(|(s, offsets)| crate::multigrid::FieldLevel {
+            offsets,
+            numbering: &s.numbering,
+        })
+        .collect();
+    crate::multigrid::P2FieldLevels::new(hierarchy, &levels)
+}

@@ -6,9 +6,9 @@
 //! The matrices are stored whole (both triangles) in compressed columns:
 //! Gauss–Seidel reads row i of a symmetric A as its column i.
 
-use super::pcg::{pcg, CgReport};
+use super::pcg::{norm2, pcg, residual, CgReport};
+use super::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::error::{Error, Result};
-use crate::linalg::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use faer::Par;
@@ -536,18 +536,6 @@ fn diagonal(a: &SparseColMat<usize, f64>) -> Vec<f64> {
         .collect()
 }
 
-/// r = b − A x (A in compressed columns, any pattern).
-pub(crate) fn residual(a: &SparseColMat<usize, f64>, b: &[f64], x: &[f64], r: &mut [f64]) {
-    r.copy_from_slice(b);
-    let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
-    for j in 0..a.ncols() {
-        let xj = x[j];
-        for k in col_ptr[j]..col_ptr[j + 1] {
-            r[rows[k]] -= values[k] * xj;
-        }
-    }
-}
-
 /// Mᵀ v (M in compressed columns: one column of M per entry of the result).
 fn gather(m: &SparseColMat<usize, f64>, v: &[f64]) -> Vec<f64> {
     let (col_ptr, rows, values) = (m.symbolic().col_ptr(), m.symbolic().row_idx(), m.val());
@@ -569,8 +557,4 @@ fn scatter_add(m: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
             y[rows[k]] += values[k] * xj;
         }
     }
-}
-
-pub(crate) fn norm2(v: &[f64]) -> f64 {
-    v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }

@@ -2,7 +2,6 @@
 //! matrix stored whole, with any symmetric positive definite preconditioner
 //! (one V-cycle of [`super::Multigrid`]: `Multigrid::precondition`).
 
-use super::vcycle::{norm2, residual};
 use faer::sparse::SparseColMat;
 
 /// What [`pcg`] did.
@@ -83,4 +82,20 @@ pub fn pcg(
 
 fn dot(u: &[f64], v: &[f64]) -> f64 {
     u.iter().zip(v).map(|(a, b)| a * b).sum()
+}
+
+/// r = b − A x (A in compressed columns, any pattern).
+pub(crate) fn residual(a: &SparseColMat<usize, f64>, b: &[f64], x: &[f64], r: &mut [f64]) {
+    r.copy_from_slice(b);
+    let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    for j in 0..a.ncols() {
+        let xj = x[j];
+        for k in col_ptr[j]..col_ptr[j + 1] {
+            r[rows[k]] -= values[k] * xj;
+        }
+    }
+}
+
+pub(crate) fn norm2(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }
