@@ -798,8 +798,6 @@ fn solve_level(
         let rhs: Vec<f64> = gradient.iter().map(|g| -g).collect();
         // While the active set moves, the step mostly moves it: a loose
         // solve. Once it holds, as tight as the KKT measure needs.
-        // While the active set moves, the step mostly moves it: a loose
-        // solve. Once it holds, as tight as the KKT measure needs.
         let eta = if active_changes > 0 {
             0.1
         } else {
