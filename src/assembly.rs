@@ -394,94 +394,42 @@ pub fn assemble_bilinear(
     out
 }
 
-/// [`assemble_bilinear`] and then [`eliminate`], straight into compressed
-/// columns on the pattern of the elements' connectivity, without triplets
-/// (at 1M vertices the P1⊕B3 stiffness is 32M triplets, 512 MB, whose sort
-/// costs more than the element loop). Each entry sums its elements' terms
-/// in element order.
+/// [`assemble_bilinear`] on one space and then [`eliminate`], straight into
+/// compressed columns ([`ElementMatrix`]: the pattern of the elements'
+/// free dofs, then each element's block added), without triplets (at 1M
+/// vertices the P1⊕B3 stiffness is 32M triplets, 512 MB, whose sort costs
+/// more than the element loop). The fixed dofs' columns times
+/// `fixed_values` go to the returned shift −A_free,fixed u_fixed.
 pub fn assemble_bilinear_eliminated(
-    test: &Space,
-    trial: &Space,
+    space: &Space,
     rule: &TriangleRule,
     form: impl Fn(&ShapeValue, &ShapeValue, &QuadPoint) -> f64,
-    rows: &DofNumbering,
-    cols: &DofNumbering,
+    numbering: &DofNumbering,
     fixed_values: &[f64],
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
-    let mesh = test.mesh;
-    // The elements of each trial dof (compressed by dof).
-    let mut elements_ptr = vec![0usize; trial.n_dofs() + 1];
-    for t in 0..mesh.n_triangles() {
-        let (dofs, n) = trial.element_dofs(t);
-        dofs[..n].iter().for_each(|&d| elements_ptr[d + 1] += 1);
-    }
-    for d in 0..trial.n_dofs() {
-        elements_ptr[d + 1] += elements_ptr[d];
-    }
-    let mut next = elements_ptr.clone();
-    let mut elements = vec![0usize; elements_ptr[trial.n_dofs()]];
-    for t in 0..mesh.n_triangles() {
-        let (dofs, n) = trial.element_dofs(t);
-        for &d in &dofs[..n] {
-            elements[next[d]] = t;
-            next[d] += 1;
+    let mut matrix = ElementMatrix::new(numbering.n_free(), space.mesh.n_triangles(), |t, dofs| {
+        let (element, n) = space.element_dofs(t);
+        let free = element[..n].iter().filter_map(|&d| numbering.free_index[d]);
+        dofs.coupled.extend(free);
+    });
+    let mut shift = vec![0.0; numbering.n_free()];
+    element_matrices(space, space, rule, form, |rows, cols, local| {
+        let mut free = [None; MAX_LOCAL];
+        for (f, &d) in free.iter_mut().zip(rows) {
+            *f = numbering.free_index[d];
         }
-    }
-    drop(next);
-    // Column c (free trial dof d): the free test dofs of d's elements.
-    let (nrows, ncols) = (rows.n_free(), cols.n_free());
-    let mut col_ptr = Vec::with_capacity(ncols + 1);
-    col_ptr.push(0usize);
-    let mut row_idx: Vec<usize> = Vec::new();
-    for &d in &cols.free_dofs {
-        let begin = row_idx.len();
-        for &t in &elements[elements_ptr[d]..elements_ptr[d + 1]] {
-            let (dofs, n) = test.element_dofs(t);
-            row_idx.extend(dofs[..n].iter().filter_map(|&r| rows.free_index[r]));
-        }
-        row_idx[begin..].sort_unstable();
-        let mut kept = begin;
-        for k in begin..row_idx.len() {
-            if kept == begin || row_idx[k] != row_idx[kept - 1] {
-                row_idx[kept] = row_idx[k];
-                kept += 1;
-            }
-        }
-        row_idx.truncate(kept);
-        col_ptr.push(kept);
-    }
-    drop((elements, elements_ptr));
-    row_idx.shrink_to_fit();
-    let mut values = vec![0.0; row_idx.len()];
-    let mut shift = vec![0.0; nrows];
-    element_matrices(
-        test,
-        trial,
-        rule,
-        form,
-        |element_rows, element_cols, local| {
-            for (j, &c) in element_cols.iter().enumerate() {
-                let column = cols.free_index[c];
-                for (i, &r) in element_rows.iter().enumerate() {
-                    let Some(ri) = rows.free_index[r] else {
-                        continue;
-                    };
-                    match column {
-                        Some(cj) => {
-                            let range = col_ptr[cj]..col_ptr[cj + 1];
-                            let k = row_idx[range.clone()]
-                                .binary_search(&ri)
-                                .expect("the pattern holds every element's entries");
-                            values[range.start + k] += local[i][j];
-                        }
-                        None => shift[ri] -= local[i][j] * fixed_values[c],
+        matrix.add(&free[..rows.len()], |a, b| local[a][b]);
+        for (j, &c) in cols.iter().enumerate() {
+            if numbering.free_index[c].is_none() {
+                for (i, ri) in free[..rows.len()].iter().enumerate() {
+                    if let Some(ri) = *ri {
+                        shift[ri] -= local[i][j] * fixed_values[c];
                     }
                 }
             }
-        },
-    );
-    let symbolic = SymbolicSparseColMat::new_checked(nrows, ncols, col_ptr, None, row_idx);
-    (SparseColMat::new(symbolic, values), shift)
+        }
+    });
+    (matrix.into_sparse(), shift)
 }
 
 /// Each triangle's element matrix of ∫ form(u, v, x), handed to `sink`

@@ -572,15 +572,8 @@ impl ModelSystem for MembraneSystem<'_> {
         let u = &self.u_space;
         // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
         let fixed_values = &self.boundary_values;
-        let (k, shift) = assemble_bilinear_eliminated(
-            u,
-            u,
-            &rule,
-            laplace,
-            &self.numbering,
-            &self.numbering,
-            fixed_values,
-        );
+        let (k, shift) =
+            assemble_bilinear_eliminated(u, &rule, laplace, &self.numbering, fixed_values);
         let f_full = match g.as_constant() {
             Some(g) => assemble_linear(u, &rule, |v, _| g * v.value),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
