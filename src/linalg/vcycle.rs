@@ -189,27 +189,18 @@ impl Multigrid {
             .chain([&a])
             .enumerate()
             .map(|(l, a)| {
-                let diagonal = diagonal(a);
-                match diagonal.iter().position(|&d| d.is_nan() || d <= 0.0) {
-                    Some(i) => Err(Error::numerical(
-                        STAGE,
-                        "diagonal",
-                        format!("level {l}: A[{i}, {i}] = {} is not positive", diagonal[i]),
-                    )),
-                    None => {
-                        let order = match options.order {
-                            SweepOrder::Numbered => (0..a.nrows()).collect(),
-                            SweepOrder::CuthillMcKee => cuthill_mckee(a),
-                        };
-                        // Stored in sweep order: the sweeps then read x and A
-                        // front by front, not scattered over the hierarchy's
-                        // numbering (twice as fast a V-cycle at 1025²).
-                        let position = inverse(&order);
-                        let a = renumbered(a, &position, &position);
-                        let diagonal = order.iter().map(|&i| diagonal[i]).collect();
-                        Ok(Level { a, diagonal, order })
-                    }
-                }
+                let diagonal = positive_diagonal(l, a)?;
+                let order = match options.order {
+                    SweepOrder::Numbered => (0..a.nrows()).collect(),
+                    SweepOrder::CuthillMcKee => cuthill_mckee(a),
+                };
+                // Stored in sweep order: the sweeps then read x and A front
+                // by front, not scattered over the hierarchy's numbering
+                // (twice as fast a V-cycle at 1025²).
+                let position = inverse(&order);
+                let a = renumbered(a, &position, &position);
+                let diagonal = order.iter().map(|&i| diagonal[i]).collect();
+                Ok(Level { a, diagonal, order })
             })
             .collect::<Result<Vec<_>>>()?;
         let prolongations = prolongations
@@ -220,19 +211,7 @@ impl Multigrid {
                 renumbered(p, &inverse(fine), &inverse(coarse))
             })
             .collect();
-        let coarsest = match levels[0].a.nrows() {
-            0 => None,
-            _ => Some(factor_once(
-                SystemPattern {
-                    matrix: &levels[0].a,
-                    kind: MatrixKind::SymmetricPositiveDefinite,
-                    solves: Solves::Many,
-                    interior: None,
-                    what: "multigrid coarsest level",
-                },
-                &options.coarse,
-            )?),
-        };
+        let coarsest = factor_coarsest(&levels[0].a, &options)?;
         Ok(Multigrid {
             given: a,
             levels,
@@ -297,30 +276,9 @@ impl Multigrid {
     /// (checked positive) and the coarsest level factorised anew.
     pub fn operators_changed(&mut self) -> Result<()> {
         for (l, level) in self.levels.iter_mut().enumerate() {
-            level.diagonal = diagonal(&level.a);
-            if let Some(i) = level.diagonal.iter().position(|&d| d.is_nan() || d <= 0.0) {
-                return Err(Error::numerical(
-                    STAGE,
-                    "diagonal",
-                    format!(
-                        "level {l}: A[{i}, {i}] = {} is not positive",
-                        level.diagonal[i]
-                    ),
-                ));
-            }
+            level.diagonal = positive_diagonal(l, &level.a)?;
         }
-        if self.levels[0].a.nrows() > 0 {
-            self.coarsest = Some(factor_once(
-                SystemPattern {
-                    matrix: &self.levels[0].a,
-                    kind: MatrixKind::SymmetricPositiveDefinite,
-                    solves: Solves::Many,
-                    interior: None,
-                    what: "multigrid coarsest level",
-                },
-                &self.options.coarse,
-            )?);
-        }
+        self.coarsest = factor_coarsest(&self.levels[0].a, &self.options)?;
         Ok(())
     }
 
@@ -521,6 +479,38 @@ fn renumbered(
     }
     let symbolic = SymbolicSparseColMat::new_checked(m.nrows(), m.ncols(), start, None, new_rows);
     SparseColMat::new(symbolic, new_values)
+}
+
+/// The diagonal of level l's operator, or an error naming its first entry
+/// that is not positive.
+fn positive_diagonal(l: usize, a: &SparseColMat<usize, f64>) -> Result<Vec<f64>> {
+    let diagonal = diagonal(a);
+    match diagonal.iter().position(|&d| d.is_nan() || d <= 0.0) {
+        Some(i) => Err(Error::numerical(
+            STAGE,
+            "diagonal",
+            format!("level {l}: A[{i}, {i}] = {} is not positive", diagonal[i]),
+        )),
+        None => Ok(diagonal),
+    }
+}
+
+/// The coarsest level's factors through the seam (None for an empty level).
+fn factor_coarsest(
+    a: &SparseColMat<usize, f64>,
+    options: &MultigridOptions,
+) -> Result<Option<Box<dyn Factors>>> {
+    if a.nrows() == 0 {
+        return Ok(None);
+    }
+    let pattern = SystemPattern {
+        matrix: a,
+        kind: MatrixKind::SymmetricPositiveDefinite,
+        solves: Solves::Many,
+        interior: None,
+        what: "multigrid coarsest level",
+    };
+    Ok(Some(factor_once(pattern, &options.coarse)?))
 }
 
 /// The diagonal of a, 0 where it has no diagonal entry.
