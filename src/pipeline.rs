@@ -5,7 +5,7 @@
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::guards;
-use crate::mesh::{Hierarchy, Mesh};
+use crate::mesh::{BoundaryGeometry, Hierarchy, Mesh};
 use crate::models::{self, ExactErrors, FigureData, ModelSystem};
 use crate::multigrid::{MultigridOptions, Smoother};
 use crate::output::transaction::RemoveOnSignal;
@@ -289,7 +289,11 @@ pub fn scene_hierarchy(scene: &Scene, msh_path: &Path) -> Result<Hierarchy> {
         k => format!("the mesh {} refined {k} times", base.source.display()),
     };
     guards::check_memory(scene, &e, &what)?;
-    let hierarchy = Hierarchy::detected(base, refinements)?;
+    // The circles are looked for only where refinement places vertices.
+    let hierarchy = match refinements {
+        0 => Hierarchy::new(base, 0, BoundaryGeometry::straight())?,
+        k => Hierarchy::detected(base, k)?,
+    };
     guards::check_mesh_scale(hierarchy.finest())?;
     if refinements > 0 && scene.mesh.file.is_none() {
         hierarchy.finest().write_msh(msh_path)?;
