@@ -815,8 +815,8 @@ fn solve_level(
         }
         // Armijo backtracking on J, its change computed without cancellation.
         let residual_slope: f64 = residual.iter().zip(&delta).map(|(r, d)| r * d).sum();
-        let k_delta = mat_vec(cycle.k(), &delta);
-        let curvature: f64 = k_delta.iter().zip(&delta).map(|(a, d)| a * d).sum();
+        // δᵀKδ, a product with K: only for a trial that moves the active set.
+        let mut curvature = None;
         let mut t = 1.0;
         let (trial, next) = loop {
             let trial: Vec<f64> = u.iter().zip(&delta).map(|(a, d)| a + t * d).collect();
@@ -827,6 +827,10 @@ fn solve_level(
             if next.active == clamped.active {
                 break (trial, next);
             }
+            let curvature = *curvature.get_or_insert_with(|| {
+                let k_delta = mat_vec(cycle.k(), &delta);
+                k_delta.iter().zip(&delta).map(|(a, d)| a * d).sum::<f64>()
+            });
             let change = condensed.change_along(&clamped, &next, t, residual_slope, curvature);
             if change <= 1e-4 * t * slope {
                 break (trial, next);
