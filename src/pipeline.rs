@@ -393,9 +393,9 @@ pub struct WarmStart {
 }
 
 /// The relative KKT tolerance of the multigrid method's coarser levels,
-/// whose solutions start the next level: at 1025² the finest level takes
-/// as many Newton steps from levels solved to 1e-4 as from 1e-6, and the
-/// coarser ones fewer.
+/// whose solutions start the next level: at 1025² the finest level takes 7
+/// Newton steps from levels solved to 1e-4, 9 from 1e-3 (docs/solvers.md,
+/// "Newton multigrid").
 const MULTIGRID_COARSE_TOL: f64 = 1e-4;
 /// CG iterations per Newton step of the multigrid method.
 const MULTIGRID_MAX_CG: usize = 200;
@@ -439,9 +439,10 @@ pub fn solver_options(
                     ..linear
                 },
                 // V(1,1) with a forward sweep before and a backward one
-                // after (symmetric as a whole): at 1025² 20 CG iterations
-                // in 2.8 s on the finest level against symmetric sweeps' 15
-                // in 3.5 s (docs/solvers.md, "Newton multigrid").
+                // after (symmetric as a whole): at 1025² 20 CG iterations on
+                // the finest level and 8.2 s of solver time against
+                // symmetric sweeps' 15 and 9.4 s (docs/solvers.md, "Newton
+                // multigrid").
                 smoother: Smoother::GaussSeidel,
                 ..MultigridOptions::default()
             },
