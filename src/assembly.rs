@@ -60,15 +60,21 @@ impl Tabulation {
 
     /// Physical values and gradients of the local basis at point q of a triangle.
     fn shapes(&self, geometry: &TriangleGeometry, q: usize) -> [ShapeValue; MAX_LOCAL] {
-        let b = &self.at_points[q];
         let mut s = [ShapeValue::default(); MAX_LOCAL];
+        self.fill_shapes(geometry, q, &mut s);
+        s
+    }
+
+    /// [`Tabulation::shapes`] written into `s` (an element loop's buffer:
+    /// no array returned and copied per point).
+    fn fill_shapes(&self, geometry: &TriangleGeometry, q: usize, s: &mut [ShapeValue; MAX_LOCAL]) {
+        let b = &self.at_points[q];
         for i in 0..self.element.n_local() {
             s[i] = ShapeValue {
                 value: b.values[i],
                 grad: geometry.gradient(b.d_lambda[i]),
             };
         }
-        s
     }
 }
 
@@ -292,8 +298,6 @@ impl ElementMatrix {
     /// couplings (`element(e, dofs)` fills element e's free dofs); every
     /// coupling is an entry, also where its value will be zero.
     pub fn new(n: usize, n_elements: usize, element: impl Fn(usize, &mut ElementDofs)) -> Self {
-        // The elements' dofs, flat; a multiplier flagged by the top bit.
-        const MULTIPLIER: usize = 1 << (usize::BITS - 1);
         let (mut element_ptr, mut element_dofs) = (vec![0usize], Vec::new());
         let mut dofs = ElementDofs::default();
         for e in 0..n_elements {
@@ -304,46 +308,47 @@ impl ElementMatrix {
             element_dofs.extend(dofs.multipliers.iter().map(|&d| d | MULTIPLIER));
             element_ptr.push(element_dofs.len());
         }
-        // The elements of each dof (a counting sort).
-        let mut dof_ptr = vec![0usize; n + 1];
-        for &d in &element_dofs {
-            assert!(d & !MULTIPLIER < n, "an element dof outside the matrix");
-            dof_ptr[(d & !MULTIPLIER) + 1] += 1;
-        }
-        for j in 0..n {
-            dof_ptr[j + 1] += dof_ptr[j];
-        }
-        let mut next = dof_ptr.clone();
-        let mut dof_elements = vec![(0usize, false); element_dofs.len()];
+        let rows = ElementLists {
+            ptr: &element_ptr,
+            dofs: &element_dofs,
+        };
+        ElementMatrix::of_pattern(pattern(n, n, rows, rows))
+    }
+
+    /// The zero nrows×ncols matrix whose pattern holds every (row, column)
+    /// pair of each element (`element(e, rows, cols)` fills element e's
+    /// free test and trial dofs): a rectangular form, e.g. a constraint.
+    pub fn rectangular(
+        nrows: usize,
+        ncols: usize,
+        n_elements: usize,
+        element: impl Fn(usize, &mut Vec<usize>, &mut Vec<usize>),
+    ) -> Self {
+        let (mut row_ptr, mut row_dofs) = (vec![0usize], Vec::new());
+        let (mut col_ptr, mut col_dofs) = (vec![0usize], Vec::new());
+        let (mut rows, mut cols) = (Vec::new(), Vec::new());
         for e in 0..n_elements {
-            for &d in &element_dofs[element_ptr[e]..element_ptr[e + 1]] {
-                let j = d & !MULTIPLIER;
-                dof_elements[next[j]] = (e, d & MULTIPLIER != 0);
-                next[j] += 1;
-            }
+            rows.clear();
+            cols.clear();
+            element(e, &mut rows, &mut cols);
+            row_dofs.extend_from_slice(&rows);
+            col_dofs.extend_from_slice(&cols);
+            row_ptr.push(row_dofs.len());
+            col_ptr.push(col_dofs.len());
         }
-        drop(next);
-        // Column j: every dof of j's elements it couples with, once, sorted.
-        let mut col_ptr = Vec::with_capacity(n + 1);
-        col_ptr.push(0usize);
-        let mut row_idx: Vec<usize> = Vec::new();
-        let mut seen = vec![usize::MAX; n];
-        for j in 0..n {
-            let start = row_idx.len();
-            for &(e, j_multiplier) in &dof_elements[dof_ptr[j]..dof_ptr[j + 1]] {
-                for &d in &element_dofs[element_ptr[e]..element_ptr[e + 1]] {
-                    let (i, i_multiplier) = (d & !MULTIPLIER, d & MULTIPLIER != 0);
-                    if !(j_multiplier && i_multiplier) && seen[i] != j {
-                        seen[i] = j;
-                        row_idx.push(i);
-                    }
-                }
-            }
-            row_idx[start..].sort_unstable();
-            col_ptr.push(row_idx.len());
-        }
-        let values = vec![0.0; row_idx.len()];
-        let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        let rows = ElementLists {
+            ptr: &row_ptr,
+            dofs: &row_dofs,
+        };
+        let cols = ElementLists {
+            ptr: &col_ptr,
+            dofs: &col_dofs,
+        };
+        ElementMatrix::of_pattern(pattern(nrows, ncols, rows, cols))
+    }
+
+    fn of_pattern(symbolic: SymbolicSparseColMat<usize>) -> Self {
+        let values = vec![0.0; symbolic.row_idx().len()];
         ElementMatrix {
             matrix: SparseColMat::new(symbolic, values),
         }
@@ -354,12 +359,23 @@ impl ElementMatrix {
     /// eliminated dof, skipped); a pair outside the pattern is a bug of
     /// the caller's element dofs and panics.
     pub fn add(&mut self, dofs: &[Option<usize>], value: impl Fn(usize, usize) -> f64) {
+        self.add_block(dofs, dofs, value);
+    }
+
+    /// Adds `value(a, b)` at `(rows[a], cols[b])`, as [`ElementMatrix::add`]
+    /// for an element's test dofs `rows` and trial dofs `cols`.
+    pub fn add_block(
+        &mut self,
+        rows: &[Option<usize>],
+        cols: &[Option<usize>],
+        value: impl Fn(usize, usize) -> f64,
+    ) {
         let (symbolic, values) = self.matrix.parts_mut();
         let (col_ptr, row_idx) = (symbolic.col_ptr(), symbolic.row_idx());
-        for (b, j) in dofs.iter().enumerate() {
+        for (b, j) in cols.iter().enumerate() {
             let Some(j) = *j else { continue };
             let (start, column) = (col_ptr[j], &row_idx[col_ptr[j]..col_ptr[j + 1]]);
-            for (a, i) in dofs.iter().enumerate() {
+            for (a, i) in rows.iter().enumerate() {
                 let Some(i) = *i else { continue };
                 let v = value(a, b);
                 match column.binary_search(&i) {
@@ -373,6 +389,74 @@ impl ElementMatrix {
     pub fn into_sparse(self) -> SparseColMat<usize, f64> {
         self.matrix
     }
+}
+
+/// A multiplier's dof in [`ElementMatrix::new`]'s element lists: flagged by
+/// the top bit (multipliers do not couple with each other).
+const MULTIPLIER: usize = 1 << (usize::BITS - 1);
+
+/// Each element's dofs, flat: element e's are `dofs[ptr[e]..ptr[e + 1]]`.
+#[derive(Clone, Copy)]
+struct ElementLists<'a> {
+    ptr: &'a [usize],
+    dofs: &'a [usize],
+}
+
+impl ElementLists<'_> {
+    fn of(&self, e: usize) -> &[usize] {
+        &self.dofs[self.ptr[e]..self.ptr[e + 1]]
+    }
+}
+
+/// The nrows × ncols pattern whose column j holds, once and
+/// sorted, every row of `rows` of each element with j among its `cols`
+/// (two [`MULTIPLIER`]-flagged dofs excepted).
+fn pattern(
+    nrows: usize,
+    ncols: usize,
+    rows: ElementLists,
+    cols: ElementLists,
+) -> SymbolicSparseColMat<usize> {
+    let n_elements = cols.ptr.len() - 1;
+    // The elements of each column (a counting sort).
+    let mut col_start = vec![0usize; ncols + 1];
+    for &d in cols.dofs {
+        assert!(d & !MULTIPLIER < ncols, "an element dof outside the matrix");
+        col_start[(d & !MULTIPLIER) + 1] += 1;
+    }
+    for j in 0..ncols {
+        col_start[j + 1] += col_start[j];
+    }
+    let mut next = col_start.clone();
+    let mut col_elements = vec![(0usize, false); cols.dofs.len()];
+    for e in 0..n_elements {
+        for &d in cols.of(e) {
+            let j = d & !MULTIPLIER;
+            col_elements[next[j]] = (e, d & MULTIPLIER != 0);
+            next[j] += 1;
+        }
+    }
+    drop(next);
+    let mut col_ptr = Vec::with_capacity(ncols + 1);
+    col_ptr.push(0usize);
+    let mut row_idx: Vec<usize> = Vec::new();
+    let mut seen = vec![usize::MAX; nrows];
+    for j in 0..ncols {
+        let start = row_idx.len();
+        for &(e, j_multiplier) in &col_elements[col_start[j]..col_start[j + 1]] {
+            for &d in rows.of(e) {
+                let (i, i_multiplier) = (d & !MULTIPLIER, d & MULTIPLIER != 0);
+                assert!(i < nrows, "an element dof outside the matrix");
+                if !(j_multiplier && i_multiplier) && seen[i] != j {
+                    seen[i] = j;
+                    row_idx.push(i);
+                }
+            }
+        }
+        row_idx[start..].sort_unstable();
+        col_ptr.push(row_idx.len());
+    }
+    SymbolicSparseColMat::new_checked(nrows, ncols, col_ptr, None, row_idx)
 }
 
 /// Assembles ∫ form(u, v, x) over the mesh: rows are test dofs, columns trial dofs.
@@ -394,34 +478,58 @@ pub fn assemble_bilinear(
     out
 }
 
-/// [`assemble_bilinear`] on one space and then [`eliminate`], straight into
-/// compressed columns ([`ElementMatrix`]: the pattern of the elements'
-/// free dofs, then each element's block added), without triplets (at 1M
-/// vertices the P1⊕B3 stiffness is 32M triplets, 512 MB, whose sort costs
-/// more than the element loop). The fixed dofs' columns times
-/// `fixed_values` go to the returned shift −A_free,fixed u_fixed.
+/// [`assemble_bilinear`] and then [`eliminate`], straight into compressed
+/// columns ([`ElementMatrix`]: the pattern of the elements' free dofs, then
+/// each element's block added), without triplets (at 1M vertices the
+/// P1⊕B3 stiffness is 32M triplets, 512 MB, whose sort costs more than the
+/// element loop). Rows are `test`'s free dofs (`rows`), columns `trial`'s
+/// (`cols`); the fixed trial dofs' columns times `fixed_values` go to the
+/// returned shift −A_free,fixed u_fixed.
 pub fn assemble_bilinear_eliminated(
-    space: &Space,
+    test: &Space,
+    trial: &Space,
     rule: &TriangleRule,
     form: impl Fn(&ShapeValue, &ShapeValue, &QuadPoint) -> f64,
-    numbering: &DofNumbering,
+    rows: &DofNumbering,
+    cols: &DofNumbering,
     fixed_values: &[f64],
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
-    let mut matrix = ElementMatrix::new(numbering.n_free(), space.mesh.n_triangles(), |t, dofs| {
+    let free_dofs = |space: &Space, numbering: &DofNumbering, t: usize, out: &mut Vec<usize>| {
         let (element, n) = space.element_dofs(t);
-        let free = element[..n].iter().filter_map(|&d| numbering.free_index[d]);
-        dofs.coupled.extend(free);
-    });
-    let mut shift = vec![0.0; numbering.n_free()];
-    element_matrices(space, space, rule, form, |rows, cols, local| {
-        let mut free = [None; MAX_LOCAL];
-        for (f, &d) in free.iter_mut().zip(rows) {
-            *f = numbering.free_index[d];
+        out.extend(element[..n].iter().filter_map(|&d| numbering.free_index[d]));
+    };
+    let mut matrix = if std::ptr::eq(test, trial) && std::ptr::eq(rows, cols) {
+        ElementMatrix::new(rows.n_free(), test.mesh.n_triangles(), |t, dofs| {
+            free_dofs(test, rows, t, &mut dofs.coupled)
+        })
+    } else {
+        ElementMatrix::rectangular(
+            rows.n_free(),
+            cols.n_free(),
+            test.mesh.n_triangles(),
+            |t, r, c| {
+                free_dofs(test, rows, t, r);
+                free_dofs(trial, cols, t, c);
+            },
+        )
+    };
+    let mut shift = vec![0.0; rows.n_free()];
+    element_matrices(test, trial, rule, form, |test_dofs, trial_dofs, local| {
+        let (mut free_rows, mut free_cols) = ([None; MAX_LOCAL], [None; MAX_LOCAL]);
+        for (f, &d) in free_rows.iter_mut().zip(test_dofs) {
+            *f = rows.free_index[d];
         }
-        matrix.add(&free[..rows.len()], |a, b| local[a][b]);
-        for (j, &c) in cols.iter().enumerate() {
-            if numbering.free_index[c].is_none() {
-                for (i, ri) in free[..rows.len()].iter().enumerate() {
+        for (f, &d) in free_cols.iter_mut().zip(trial_dofs) {
+            *f = cols.free_index[d];
+        }
+        let (free_rows, free_cols) = (
+            &free_rows[..test_dofs.len()],
+            &free_cols[..trial_dofs.len()],
+        );
+        matrix.add_block(free_rows, free_cols, |a, b| local[a][b]);
+        for (j, &c) in trial_dofs.iter().enumerate() {
+            if free_cols[j].is_none() {
+                for (i, ri) in free_rows.iter().enumerate() {
                     if let Some(ri) = *ri {
                         shift[ri] -= local[i][j] * fixed_values[c];
                     }
@@ -447,12 +555,23 @@ fn element_matrices(
         Tabulation::new(test.element, rule),
     );
     let (nu, nv) = (trial.element.n_local(), test.element.n_local());
+    let same_element = test.element == trial.element;
     let mut local = [[0.0; MAX_LOCAL]; MAX_LOCAL];
+    let (mut su, mut sv_buffer) = (
+        [ShapeValue::default(); MAX_LOCAL],
+        [ShapeValue::default(); MAX_LOCAL],
+    );
     for t in 0..mesh.n_triangles() {
         let g = TriangleGeometry::new(mesh, t);
-        local.iter_mut().for_each(|row| row.fill(0.0));
+        local[..nv].iter_mut().for_each(|row| row[..nu].fill(0.0));
         for (q, p) in quad_points(&g, t, rule).enumerate() {
-            let (su, sv) = (tab_u.shapes(&g, q), tab_v.shapes(&g, q));
+            tab_u.fill_shapes(&g, q, &mut su);
+            let sv = if same_element {
+                &su
+            } else {
+                tab_v.fill_shapes(&g, q, &mut sv_buffer);
+                &sv_buffer
+            };
             for i in 0..nv {
                 for j in 0..nu {
                     local[i][j] += p.weight * form(&su[j], &sv[i], &p);
@@ -475,11 +594,12 @@ pub fn assemble_linear(
     let tab = Tabulation::new(test.element, rule);
     let n = test.element.n_local();
     let mut out = vec![0.0; test.n_dofs()];
+    let mut s = [ShapeValue::default(); MAX_LOCAL];
     for t in 0..mesh.n_triangles() {
         let g = TriangleGeometry::new(mesh, t);
         let (dofs, _) = test.element_dofs(t);
         for (q, p) in quad_points(&g, t, rule).enumerate() {
-            let s = tab.shapes(&g, q);
+            tab.fill_shapes(&g, q, &mut s);
             for i in 0..n {
                 out[dofs[i]] += p.weight * form(&s[i], &p);
             }

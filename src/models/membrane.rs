@@ -13,8 +13,8 @@ use super::{
     SkeletonTransfers,
 };
 use crate::assembly::{
-    assemble_bilinear, assemble_bilinear_eliminated, assemble_linear, eliminate, integrate_fields,
-    laplace, lumped_mass, mass, quadrature_points, DofNumbering, QuadPoint, ShapeValue,
+    assemble_bilinear_eliminated, assemble_linear, integrate_fields, laplace, lumped_mass, mass,
+    quadrature_points, DofNumbering, QuadPoint, ShapeValue,
 };
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionSet, SetEvaluator};
@@ -26,6 +26,7 @@ use crate::quadrature::TriangleRule;
 use crate::scene::{ColdStartSpec, ElementPair, Expression, ObstacleSpec, Scene};
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::path::PathBuf;
 
 /// The membrane model as the stages around it see it ([`ModelKind`]).
@@ -563,6 +564,22 @@ fn check_exact_solution_applies(
     Ok(())
 }
 
+/// [C; −C]: the rows of both bounds of a two-sided obstacle.
+fn stacked_with_negation(c: &SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+    let (m, n) = (c.nrows(), c.ncols());
+    let (mut col_ptr, mut rows, mut values) = (vec![0usize], Vec::new(), Vec::new());
+    for j in 0..n {
+        let (col_rows, col_values) = (c.symbolic().row_idx_of_col_raw(j), c.val_of_col(j));
+        rows.extend_from_slice(col_rows);
+        rows.extend(col_rows.iter().map(|&i| m + i));
+        values.extend_from_slice(col_values);
+        values.extend(col_values.iter().map(|&v| -v));
+        col_ptr.push(rows.len());
+    }
+    let symbolic = SymbolicSparseColMat::new_checked(2 * m, n, col_ptr, None, rows);
+    SparseColMat::new(symbolic, values)
+}
+
 impl ModelSystem for MembraneSystem<'_> {
     /// The algebraic problem: stiffness K, load F, and (only when the scene has
     /// an obstacle) the constraint C u ≥ g with its Riesz weights.
@@ -572,14 +589,14 @@ impl ModelSystem for MembraneSystem<'_> {
         let u = &self.u_space;
         // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
         let fixed_values = &self.boundary_values;
+        let numbering = &self.numbering;
         let (k, shift) =
-            assemble_bilinear_eliminated(u, &rule, laplace, &self.numbering, fixed_values);
+            assemble_bilinear_eliminated(u, u, &rule, laplace, numbering, numbering, fixed_values);
         let f_full = match g.as_constant() {
             Some(g) => assemble_linear(u, &rule, |v, _| g * v.value),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
         };
-        let rhs: Vec<f64> = self
-            .numbering
+        let rhs: Vec<f64> = numbering
             .restrict(&f_full)
             .iter()
             .zip(&shift)
@@ -589,9 +606,16 @@ impl ModelSystem for MembraneSystem<'_> {
             None => None,
             Some(obstacle) => {
                 let lam = &self.lambda_space;
-                let c_full = assemble_bilinear(lam, u, &rule, mass);
                 let all_rows = DofNumbering::all_free(lam.n_dofs());
-                let (mut c, c_shift) = eliminate(c_full, &all_rows, &self.numbering, fixed_values);
+                let (mut c, c_shift) = assemble_bilinear_eliminated(
+                    lam,
+                    u,
+                    &rule,
+                    mass,
+                    &all_rows,
+                    numbering,
+                    fixed_values,
+                );
                 let phi = self.phi.as_ref().expect("set up with the obstacle");
                 let (mut g_vec, mut weights) =
                     self.obstacle_rows(phi, |x| obstacle.value(x), &rule);
@@ -602,15 +626,12 @@ impl ModelSystem for MembraneSystem<'_> {
                     // constraint [C; −C] x ≥ [g₁; −g₂], each bound with its weights.
                     let (g_upper, w_upper) =
                         self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
-                    let m = self.n_rows();
-                    let lower_rows = c.clone();
-                    c.nrows = 2 * m;
-                    c.add_block(&lower_rows, m, 0, -1.0, false);
+                    c = stacked_with_negation(&c);
                     g_vec.extend(g_upper.iter().zip(&c_shift).map(|(g, s)| -(g + s)));
                     weights.extend(w_upper);
                 }
                 Some(Constraint {
-                    matrix: c.into_sparse(),
+                    matrix: c,
                     obstacle: g_vec,
                     weights,
                 })
