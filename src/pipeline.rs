@@ -433,6 +433,7 @@ pub fn solver_options(
             max_cg: MULTIGRID_MAX_CG,
             show_progress,
             levels: None,
+            threads: linear.threads,
             cycle: MultigridOptions {
                 coarse: LinearOptions {
                     threads: 1,
@@ -594,11 +595,8 @@ pub fn solve_on<'m>(
     show_progress: bool,
     phase_end: &mut dyn FnMut(&str),
 ) -> Result<Solved<'m>> {
-    let (system, problem) = assembled(scene, mesh)?;
-    let levels = match (scene.solver.method, start) {
-        (Method::Multigrid, Start::Scene(Some(h))) if std::ptr::eq(h.finest(), mesh) => {
-            Some(Arc::new(multigrid_levels(scene, h)?))
-        }
+    let hierarchy = match (scene.solver.method, start) {
+        (Method::Multigrid, Start::Scene(Some(h))) if std::ptr::eq(h.finest(), mesh) => Some(h),
         (Method::Multigrid, _) => {
             return Err(scene.error(
                 "solver.method",
@@ -607,6 +605,22 @@ pub fn solve_on<'m>(
         }
         _ => None,
     };
+    // The coarser levels (a third of the finest's work) are assembled
+    // beside the finest when the scene gives the solver two threads.
+    let (assembled_finest, levels) = match hierarchy {
+        None => (assembled(scene, mesh), None),
+        Some(h) if scene.solver.threads >= 2 => std::thread::scope(|threads| {
+            let coarser = threads.spawn(|| multigrid_levels(scene, h));
+            let finest = assembled(scene, mesh);
+            let coarser = coarser
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            (finest, Some(coarser))
+        }),
+        Some(h) => (assembled(scene, mesh), Some(multigrid_levels(scene, h))),
+    };
+    let (system, problem) = assembled_finest?;
+    let levels = levels.transpose()?.map(Arc::new);
     phase_end("assembly");
     let warm = match start {
         Start::Scene(_) => nested_start(scene, system.as_ref(), &problem)?,

@@ -124,8 +124,9 @@ pub trait LinearSolver {
     fn counts(&self) -> SolverCounts;
 }
 
-/// The numeric phase's result for one matrix A: solves with it.
-pub trait Factors {
+/// The numeric phase's result for one matrix A: solves with it (Send:
+/// a multigrid level may be set up on a second thread).
+pub trait Factors: Send {
     /// A x = b in place (b becomes x), to the solver's accuracy.
     fn solve_in_place(&self, b: &mut [f64]);
 

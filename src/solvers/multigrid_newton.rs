@@ -96,6 +96,9 @@ pub struct MultigridNewtonOptions {
     /// error naming what is missing).
     pub levels: Option<Arc<MultigridLevels>>,
     pub cycle: MultigridOptions,
+    /// With 2 or more, the finest level is set up (condensed, its V-cycle
+    /// built) on a second thread while the coarser levels solve.
+    pub threads: usize,
 }
 
 /// A problem condensed to its skeleton (module docs).
@@ -180,12 +183,9 @@ impl Condensed {
         // A's lower triangle (whichever way it is stored), mirrored into
         // compressed columns: column c receives the rows j < c while the
         // columns j are read, then its own rows i ≥ c, so each column comes
-        // out sorted.
+        // out sorted. A coupling of an interior unknown is checked where it
+        // is read, against both diagonals (read first).
         let a = &problem.matrix;
-        let mut d = vec![0.0; interior.len()];
-        let mut couplings = Vec::new();
-        let ns = skeleton.len();
-        let mut col_ptr = vec![0usize; ns + 1];
         let lower = |j: usize| {
             let range = a.symbolic().col_range(j);
             a.symbolic().row_idx()[range.clone()]
@@ -193,14 +193,41 @@ impl Condensed {
                 .zip(&a.val()[range])
                 .filter(move |(&i, _)| i >= j)
         };
+        let mut diagonal = vec![0.0; n];
+        for (j, dj) in diagonal.iter_mut().enumerate() {
+            *dj = lower(j).find(|(&i, _)| i == j).map_or(0.0, |(_, &v)| v);
+        }
+        if let Some(b) = interior
+            .iter()
+            .position(|&i| diagonal[i].is_nan() || diagonal[i] <= 0.0)
+        {
+            return Err(refuse(format!(
+                "the interior unknown {} has the diagonal {:e}",
+                interior[b], diagonal[interior[b]]
+            )));
+        }
+        let d: Vec<f64> = interior.iter().map(|&i| diagonal[i]).collect();
+        let ns = skeleton.len();
+        let mut col_ptr = vec![0usize; ns + 1];
         for j in 0..n {
-            for (&i, _) in lower(j) {
+            for (&i, &v) in lower(j) {
                 let (si, sj) = (skeleton_of[i], skeleton_of[j]);
                 if si != NONE && sj != NONE {
                     col_ptr[sj + 1] += 1;
                     if si != sj {
                         col_ptr[si + 1] += 1;
                     }
+                } else if si == NONE && sj == NONE {
+                    if i != j && v != 0.0 {
+                        return Err(refuse(format!(
+                            "the interior unknowns {i} and {j} are coupled (A = {v:e})"
+                        )));
+                    }
+                } else if v.abs() > 1e-10 * (diagonal[i] * diagonal[j]).abs().sqrt() {
+                    let (interior_unknown, other) = if si == NONE { (i, j) } else { (j, i) };
+                    return Err(refuse(format!(
+                        "the interior unknown {interior_unknown} couples to the unknown {other} (A = {v:e})"
+                    )));
                 }
             }
         }
@@ -212,53 +239,20 @@ impl Condensed {
         let mut values = vec![0.0; col_ptr[ns]];
         for j in 0..n {
             for (&i, &v) in lower(j) {
-                match (skeleton_of[i], skeleton_of[j]) {
-                    (NONE, NONE) if i == j => d[interior_of[i]] = v,
-                    (NONE, NONE) if v != 0.0 => {
-                        return Err(refuse(format!(
-                            "the interior unknowns {i} and {j} are coupled (A = {v:e})"
-                        )))
+                let (si, sj) = (skeleton_of[i], skeleton_of[j]);
+                if si != NONE && sj != NONE {
+                    (rows[next[sj]], values[next[sj]]) = (si, v);
+                    next[sj] += 1;
+                    if si != sj {
+                        (rows[next[si]], values[next[si]]) = (sj, v);
+                        next[si] += 1;
                     }
-                    (NONE, NONE) => {}
-                    (si, sj) if si != NONE && sj != NONE => {
-                        (rows[next[sj]], values[next[sj]]) = (si, v);
-                        next[sj] += 1;
-                        if si != sj {
-                            (rows[next[si]], values[next[si]]) = (sj, v);
-                            next[si] += 1;
-                        }
-                    }
-                    _ => couplings.push((i, j, v)),
                 }
             }
         }
+        drop(next);
         let symbolic = SymbolicSparseColMat::new_checked(ns, ns, col_ptr, None, rows);
         let k = SparseColMat::new(symbolic, values);
-        let diagonal = |i: usize| match skeleton_of[i] {
-            NONE => d[interior_of[i]],
-            s => k
-                .symbolic()
-                .row_idx_of_col(s)
-                .zip(k.val_of_col(s))
-                .find(|(r, _)| *r == s)
-                .map_or(0.0, |(_, v)| *v),
-        };
-        if let Some(&(i, j, v)) = couplings
-            .iter()
-            .find(|(i, j, v)| v.abs() > 1e-10 * (diagonal(*i) * diagonal(*j)).abs().sqrt())
-        {
-            return Err(refuse(format!(
-                "the interior unknown {} couples to the unknown {} (A = {v:e})",
-                if skeleton_of[i] == NONE { i } else { j },
-                if skeleton_of[i] == NONE { j } else { i },
-            )));
-        }
-        if let Some(b) = d.iter().position(|&v| v.is_nan() || v <= 0.0) {
-            return Err(refuse(format!(
-                "the interior unknown {} has the diagonal {:e}",
-                interior[b], d[b]
-            )));
-        }
         // C row by row: its interior unknown and β, and c on the skeleton.
         let m = c.obstacle.len();
         let mut row_interior = vec![NONE; m];
@@ -647,62 +641,45 @@ pub fn multigrid_newton(
             options.tol,
             options.show_progress,
         );
-    let mut u: Vec<f64> = Vec::new();
+    let set_up = |l: usize| LevelSetup::new(problems[l], &levels.prolongations[..l], options);
     let mut per_level = Vec::with_capacity(problems.len());
-    let mut last = None;
-    for (l, level_problem) in problems.iter().enumerate() {
-        let (condensed, k) = Condensed::of(level_problem)?;
-        if let Some(p) = l.checked_sub(1).map(|c| &levels.prolongations[c]) {
-            if p.nrows() != condensed.n_skeleton()
-                || p.ncols() != u.len()
-                || levels.lifts[l - 1].len() != p.nrows()
-            {
-                return Err(Error::numerical(
-                    STAGE,
-                    "prolongation",
-                    format!(
-                        "prolongation {} is {} × {}, the levels have {} and {} skeleton unknowns",
-                        l - 1,
-                        p.nrows(),
-                        p.ncols(),
-                        u.len(),
-                        condensed.n_skeleton()
-                    ),
-                ));
-            }
+    let mut u: Vec<f64> = Vec::new();
+    // Levels 0 … finest − 1 from the coarsest, each from the previous one's
+    // u; the finest level's set-up (most of a level's cost before its first
+    // Newton step) is made meanwhile on a second thread when there is one.
+    let mut solve_coarser = |builder: &mut ReportBuilder| -> Result<Vec<f64>> {
+        let mut u: Vec<f64> = Vec::new();
+        for l in 0..finest {
+            let solved = solve_level(set_up(l)?, problems[l], &u, l, levels, options, builder)?;
+            per_level.push((solved.newton_steps, solved.cg_iterations));
+            u = solved.u;
         }
-        let start = match l {
-            0 => vec![0.0; condensed.n_skeleton()],
-            _ => {
-                let mut start = mat_vec(&levels.prolongations[l - 1], &u);
-                start
-                    .iter_mut()
-                    .zip(&levels.lifts[l - 1])
-                    .for_each(|(s, lift)| *s += lift);
-                start
-            }
-        };
-        let tol = if l == finest {
-            options.tol
-        } else {
-            options.coarse_tol.max(options.tol)
-        };
-        let solved = solve_level(
-            level_problem,
-            &condensed,
-            k,
-            &levels.prolongations[..l],
-            start,
-            tol,
-            l,
-            options,
-            &mut builder,
-        )?;
-        per_level.push((solved.newton_steps, solved.cg_iterations));
-        u = solved.u.clone();
-        last = Some(solved);
-    }
-    let solved = last.expect("at least the given level");
+        Ok(u)
+    };
+    let finest_setup = if options.threads >= 2 && finest > 0 {
+        std::thread::scope(|threads| {
+            let finest_setup = threads.spawn(|| set_up(finest));
+            let coarser = solve_coarser(&mut builder);
+            let finest_setup = finest_setup
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            u = coarser?;
+            finest_setup
+        })?
+    } else {
+        u = solve_coarser(&mut builder)?;
+        set_up(finest)?
+    };
+    let solved = solve_level(
+        finest_setup,
+        problem,
+        &u,
+        finest,
+        levels,
+        options,
+        &mut builder,
+    )?;
+    per_level.push((solved.newton_steps, solved.cg_iterations));
     builder.iterations = solved.newton_steps;
     builder.measures = solved.measures;
     if solved.converged {
@@ -718,25 +695,81 @@ pub fn multigrid_newton(
     Ok(builder.finish(solved.x, solved.lambda, parameters))
 }
 
-/// Newton on one level from the skeleton iterate `u` (module docs).
-#[allow(clippy::too_many_arguments)]
+/// A level made ready for Newton: its problem condensed, the V-cycle of
+/// its K built, the dual diagonal of its KKT measure.
+struct LevelSetup {
+    condensed: Condensed,
+    cycle: HessianCycle,
+    compliance: Vec<f64>,
+}
+
+impl LevelSetup {
+    fn new(
+        problem: &ContactProblem,
+        prolongations: &[SparseColMat<usize, f64>],
+        options: &MultigridNewtonOptions,
+    ) -> Result<Self> {
+        let (condensed, k) = Condensed::of(problem)?;
+        let cycle = HessianCycle::new(&condensed, k, prolongations, options.cycle)?;
+        Ok(LevelSetup {
+            compliance: jacobi_dual_diagonal(problem),
+            condensed,
+            cycle,
+        })
+    }
+}
+
+/// Newton on level `level` (module docs), from the interpolant of the
+/// level below's skeleton solution `coarse_u` (from 0 on level 0).
 fn solve_level(
+    setup: LevelSetup,
     problem: &ContactProblem,
-    condensed: &Condensed,
-    k: SparseColMat<usize, f64>,
-    prolongations: &[SparseColMat<usize, f64>],
-    mut u: Vec<f64>,
-    tol: f64,
+    coarse_u: &[f64],
     level: usize,
+    levels: &MultigridLevels,
     options: &MultigridNewtonOptions,
     builder: &mut ReportBuilder,
 ) -> Result<LevelSolve> {
+    let LevelSetup {
+        condensed,
+        mut cycle,
+        compliance,
+    } = setup;
+    let condensed = &condensed;
+    let mut u = match level.checked_sub(1) {
+        None => vec![0.0; condensed.n_skeleton()],
+        Some(below) => {
+            let (p, lift) = (&levels.prolongations[below], &levels.lifts[below]);
+            if p.nrows() != condensed.n_skeleton()
+                || p.ncols() != coarse_u.len()
+                || lift.len() != p.nrows()
+            {
+                return Err(Error::numerical(
+                    STAGE,
+                    "prolongation",
+                    format!(
+                        "prolongation {below} is {} × {}, the levels have {} and {} skeleton unknowns",
+                        p.nrows(),
+                        p.ncols(),
+                        coarse_u.len(),
+                        condensed.n_skeleton()
+                    ),
+                ));
+            }
+            let mut start = mat_vec(p, coarse_u);
+            start.iter_mut().zip(lift).for_each(|(s, l)| *s += l);
+            start
+        }
+    };
+    let tol = if level == levels.coarser.len() {
+        options.tol
+    } else {
+        options.coarse_tol.max(options.tol)
+    };
     let constraint = problem
         .constraint
         .as_ref()
         .expect("condensed: a constraint");
-    let compliance = jacobi_dual_diagonal(problem);
-    let mut cycle = HessianCycle::new(condensed, k, prolongations, options.cycle)?;
     // Newton converges in finitely many steps on a piecewise quadratic:
     // ten without a 1 % better KKT measure is a tolerance the solves
     // cannot reach.
