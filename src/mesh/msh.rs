@@ -54,7 +54,8 @@ impl Mesh {
             [t] => t,
             _ => 0,
         };
-        // Streamed: the text of a large mesh is never held whole.
+        // Streamed: the text of a large mesh is never held whole. The node and
+        // element lines, millions of them, are formatted by `Line`.
         let mut write = || -> std::io::Result<()> {
             writeln!(w, "$MeshFormat\n2.2 0 8\n$EndMeshFormat")?;
             if !self.physical_names.is_empty() {
@@ -65,32 +66,86 @@ impl Mesh {
                 }
                 writeln!(w, "$EndPhysicalNames")?;
             }
+            let mut line = Line::default();
             writeln!(w, "$Nodes\n{}", self.n_vertices())?;
-            for (i, [x, y]) in self.vertices.iter().enumerate() {
-                writeln!(w, "{} {x:?} {y:?} 0", i + 1)?;
+            for (i, &[x, y]) in self.vertices.iter().enumerate() {
+                line.int(i + 1).float(x).float(y).int(0);
+                line.write_to(&mut w)?;
             }
             writeln!(w, "$EndNodes")?;
             let n_elements = self.boundary_edges.len() + self.n_triangles();
             writeln!(w, "$Elements\n{n_elements}")?;
             for (k, e) in self.boundary_edges.iter().enumerate() {
                 let [a, b] = e.vertices;
-                writeln!(w, "{} 1 2 {} {} {} {}", k + 1, e.tag, e.tag, a + 1, b + 1)?;
+                line.int(k + 1).int(1).int(2).int(e.tag).int(e.tag);
+                line.int(a + 1).int(b + 1);
+                line.write_to(&mut w)?;
             }
             let offset = self.boundary_edges.len() + 1;
             for (k, [a, b, c]) in self.triangles.iter().enumerate() {
-                writeln!(
-                    w,
-                    "{} 2 2 {surface} {surface} {} {} {}",
-                    k + offset,
-                    a + 1,
-                    b + 1,
-                    c + 1
-                )?;
+                line.int(k + offset).int(2).int(2).int(surface).int(surface);
+                line.int(a + 1).int(b + 1).int(c + 1);
+                line.write_to(&mut w)?;
             }
             writeln!(w, "$EndElements")?;
             w.flush()
         };
         write().map_err(error)
+    }
+}
+
+/// One line of the MSH writer: numbers separated by spaces, formatted by
+/// itoa and ryu rather than `core::fmt` (the writer's time on millions of
+/// node and element lines is mostly formatting). The text is that of `{}`
+/// for integers and, but for ties ([`Line::float`]), `{:?}` for floats.
+#[derive(Default)]
+pub(super) struct Line {
+    text: Vec<u8>,
+    ints: itoa::Buffer,
+    floats: ryu::Buffer,
+}
+
+impl Line {
+    fn separate(&mut self) {
+        if !self.text.is_empty() {
+            self.text.push(b' ');
+        }
+    }
+
+    /// Appends an integer.
+    pub(super) fn int<I: itoa::Integer>(&mut self, n: I) -> &mut Self {
+        self.separate();
+        self.text.extend_from_slice(self.ints.format(n).as_bytes());
+        self
+    }
+
+    /// Appends a float as `{:?}` writes it: the shortest decimal that reads
+    /// back to the same f64, with a `.0` on whole numbers, in exponent form
+    /// below 1e-4 and from 1e16 in magnitude. ryu writes the same digits,
+    /// but for exact ties between two shortest decimals (rounded to even
+    /// by ryu, up by `core::fmt`; both read back to x), and switches to
+    /// exponent form below 1e-5 instead: the values between (and the
+    /// non-finite ones, which a valid mesh has none of) go through
+    /// `core::fmt`.
+    pub(super) fn float(&mut self, x: f64) -> &mut Self {
+        self.separate();
+        let a = x.abs();
+        if x.is_finite() && !(1e-5..1e-4).contains(&a) {
+            self.text
+                .extend_from_slice(self.floats.format_finite(x).as_bytes());
+        } else {
+            use std::io::Write;
+            let _ = write!(self.text, "{x:?}");
+        }
+        self
+    }
+
+    /// Writes the line and its newline to `w`, and starts the next line.
+    pub(super) fn write_to(&mut self, w: &mut impl std::io::Write) -> std::io::Result<()> {
+        self.text.push(b'\n');
+        let written = w.write_all(&self.text);
+        self.text.clear();
+        written
     }
 }
 
@@ -1010,6 +1065,90 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert_mentions(&e, &["missing boundary tag"]);
+    }
+
+    /// `Line` writes numbers as `{}` (integers) and `{:?}` (floats) do:
+    /// special values, the edges of the decimal range, random bit patterns
+    /// and random values of every magnitude.
+    #[test]
+    fn line_numbers_read_as_core_fmt_writes_them() {
+        let mut floats = vec![
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            0.1,
+            0.5,
+            -2.0,
+            1e-4,
+            9.999999999999999e-5,
+            1e-5,
+            9.999999999999999e-6,
+            1e15,
+            9.999999999999998e15,
+            1e16,
+            1e21,
+            1e22,
+            123456789.125,
+            std::f64::consts::PI,
+            6.123233995736766e-17,
+            5e-324,
+            f64::MIN_POSITIVE,
+            f64::MAX,
+            f64::MIN,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let mut state: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut rnd = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for _ in 0..100_000 {
+            floats.push(f64::from_bits(rnd()));
+            let unit = (rnd() >> 11) as f64 / (1u64 << 53) as f64;
+            let exponent = (rnd() % 60) as i32 - 30;
+            floats.push((unit - 0.5) * 10f64.powi(exponent));
+        }
+        let mut line = Line::default();
+        let mut ties = 0;
+        for x in floats {
+            let mut text = Vec::new();
+            line.float(x).write_to(&mut text).unwrap();
+            let text = String::from_utf8(text).unwrap();
+            let text = text.strip_suffix('\n').unwrap();
+            let read: f64 = text.parse().unwrap();
+            assert!(
+                read.to_bits() == x.to_bits() || (read.is_nan() && x.is_nan()),
+                "{x:?} written as {text} reads back as {read:?}"
+            );
+            let core = format!("{x:?}");
+            if text != core {
+                // An exact tie between two shortest decimals (x has one
+                // decimal digit more, a 5), ryu rounding to even and
+                // core::fmt up: the last digit of the mantissa differs.
+                let split = |s: &str| {
+                    let (m, e) = s.split_once('e').unwrap_or((s, ""));
+                    (m[..m.len() - 1].to_string(), e.to_string())
+                };
+                assert_eq!(split(text), split(&core), "{text} and {core}");
+                ties += 1;
+            }
+        }
+        assert!(ties < 1000, "{ties} ties");
+        let mut text = Vec::new();
+        line.int(i32::MIN)
+            .int(0)
+            .int(-7)
+            .int(usize::MAX)
+            .int(1usize);
+        line.write_to(&mut text).unwrap();
+        line.int(42).float(0.25).write_to(&mut text).unwrap();
+        let expected = format!("{} 0 -7 {} 1\n42 0.25\n", i32::MIN, usize::MAX);
+        assert_eq!(String::from_utf8(text).unwrap(), expected);
     }
 
     #[test]

@@ -154,8 +154,18 @@ fn fitted_circle(points: &[[f64; 2]]) -> Option<([f64; 2], f64)> {
 impl Mesh {
     /// The uniform refinement: every triangle split in four by its edge
     /// midpoints, new boundary vertices placed by `geometry`; numbering as
-    /// in the [module docs](self). The result is validated like any mesh
-    /// (a snapped vertex that inverts a triangle is an error naming it).
+    /// in the [module docs](self).
+    ///
+    /// The refined mesh is built from this mesh's topology (edges, triangle
+    /// edges, boundary edges), with the fields [`Mesh::from_parts`] derives
+    /// numbered as it numbers them, without validating it anew: the split
+    /// of a valid triangulation is a valid triangulation (no duplicate
+    /// triangles, stray vertices, non-manifold or overlapping edges, every
+    /// boundary edge tagged). What can go wrong is geometric, and is
+    /// checked: a new vertex that is not finite (a midpoint overflowing
+    /// f64), and a child triangle that is degenerate or inverted (a vertex
+    /// snapped onto its circle across the opposite edge); the error names
+    /// the child triangle and its coarse triangle.
     pub fn refine_uniform(&self, geometry: &BoundaryGeometry) -> Result<Mesh> {
         let n = self.n_vertices();
         let mut vertices = Vec::with_capacity(n + self.n_edges());
@@ -164,25 +174,8 @@ impl Mesh {
             let (p, q) = (self.vertices[a], self.vertices[b]);
             [0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1])]
         }));
-        // The boundary edges' indices among all edges (a map of the few
-        // boundary edges, not of all of them).
-        let wanted: super::VertexMap<[usize; 2], usize> = self
-            .boundary_edges
-            .iter()
-            .enumerate()
-            .map(|(l, be)| {
-                let [a, b] = be.vertices;
-                ([a.min(b), a.max(b)], l)
-            })
-            .collect();
-        let mut edge_of_boundary = vec![0usize; self.boundary_edges.len()];
-        for (e, key) in self.edges.iter().enumerate() {
-            if let Some(&l) = wanted.get(key) {
-                edge_of_boundary[l] = e;
-            }
-        }
         let mut boundary_edges = Vec::with_capacity(2 * self.boundary_edges.len());
-        for (be, &e) in self.boundary_edges.iter().zip(&edge_of_boundary) {
+        for (be, e) in self.boundary_edges.iter().zip(self.boundary_edge_indices()) {
             let [a, b] = be.vertices;
             let m = n + e;
             vertices[m] = geometry.place(be.tag, vertices[m]);
@@ -195,23 +188,142 @@ impl Mesh {
                 tag: be.tag,
             });
         }
+        let refinement = || {
+            format!(
+                "the uniform refinement of the mesh of {n} vertices and {} triangles",
+                self.n_triangles()
+            )
+        };
+        if let Some(v) = (n..vertices.len()).find(|&v| !vertices[v].iter().all(|x| x.is_finite())) {
+            let [x, y] = vertices[v];
+            return Err(Error::mesh(
+                self.source.clone(),
+                format!(
+                    "{}: vertex {v} (zero-based; the midpoint of edge {}) has non-finite \
+                     coordinates ({x}, {y})",
+                    refinement(),
+                    v - n
+                ),
+            ));
+        }
+
+        // Child edges, numbered by first appearance over the child triangles
+        // in order and, in each, local edges 0, 1, 2 (as `validate::build`
+        // numbers them). Coarse triangle t = [a, b, c] brings, in that
+        // order: the interior edge m_ab–m_ca, the halves of ca and ab at a,
+        // the half of bc at b, the interior edge m_bc–m_ab, the half of ab
+        // at b, the halves of bc and ca at c, the interior edge m_ca–m_bc.
+        // A half is new in the first coarse triangle that holds its coarse
+        // edge, both halves of which its children hold; interior edges are
+        // new in theirs. Half-edge keys [v, n + e] have v < n <= n + e.
+        let n_edges = 2 * self.n_edges() + 3 * self.n_triangles();
+        let mut edges: Vec<[usize; 2]> = Vec::with_capacity(n_edges);
+        let mut halves = vec![[usize::MAX; 2]; self.n_edges()];
+        let mut half = |edges: &mut Vec<[usize; 2]>, e: usize, v: usize| {
+            let slot = &mut halves[e][usize::from(self.edges[e][0] != v)];
+            if *slot == usize::MAX {
+                *slot = edges.len();
+                edges.push([v, n + e]);
+            }
+            *slot
+        };
+        let interior = |edges: &mut Vec<[usize; 2]>, p: usize, q: usize| {
+            edges.push([p.min(q), p.max(q)]);
+            edges.len() - 1
+        };
         let mut triangles = Vec::with_capacity(4 * self.n_triangles());
-        for (tri, edges) in self.triangles.iter().zip(&self.triangle_edges) {
+        let mut triangle_edges = Vec::with_capacity(4 * self.n_triangles());
+        for (tri, te) in self.triangles.iter().zip(&self.triangle_edges) {
             let [a, b, c] = *tri;
             // Local edge i is opposite local vertex i.
-            let (m_bc, m_ca, m_ab) = (n + edges[0], n + edges[1], n + edges[2]);
+            let [e_bc, e_ca, e_ab] = *te;
+            let (m_bc, m_ca, m_ab) = (n + e_bc, n + e_ca, n + e_ab);
             triangles.push([a, m_ab, m_ca]);
             triangles.push([m_ab, b, m_bc]);
             triangles.push([m_ca, m_bc, c]);
             triangles.push([m_ab, m_bc, m_ca]);
+            let i_a = interior(&mut edges, m_ab, m_ca);
+            let ca_a = half(&mut edges, e_ca, a);
+            let ab_a = half(&mut edges, e_ab, a);
+            let bc_b = half(&mut edges, e_bc, b);
+            let i_b = interior(&mut edges, m_bc, m_ab);
+            let ab_b = half(&mut edges, e_ab, b);
+            let bc_c = half(&mut edges, e_bc, c);
+            let ca_c = half(&mut edges, e_ca, c);
+            let i_c = interior(&mut edges, m_ca, m_bc);
+            triangle_edges.push([i_a, ca_a, ab_a]);
+            triangle_edges.push([bc_b, i_b, ab_b]);
+            triangle_edges.push([bc_c, ca_c, i_c]);
+            triangle_edges.push([i_c, i_a, i_b]);
         }
-        Mesh::from_parts(
+        debug_assert_eq!(edges.len(), n_edges);
+
+        for (t, tri) in triangles.iter().enumerate() {
+            if let Some(bad) = BadShape::of(tri.map(|v| vertices[v])) {
+                let advice = match bad {
+                    BadShape::NotFinite => "",
+                    _ => {
+                        "; the coarse triangle is valid, so a new boundary vertex placed \
+                         on its circle spoils it: the coarse mesh is too coarse along \
+                         the curve (refine it, e.g. a larger mesh.n)"
+                    }
+                };
+                return Err(Error::mesh(
+                    self.source.clone(),
+                    format!(
+                        "{}: triangle {t} (zero-based; vertices {} {} {}; child {} of coarse \
+                         triangle {}): {}{advice}",
+                        refinement(),
+                        tri[0],
+                        tri[1],
+                        tri[2],
+                        t % 4,
+                        t / 4,
+                        bad.what()
+                    ),
+                ));
+            }
+        }
+
+        Ok(Mesh {
             vertices,
             triangles,
             boundary_edges,
-            self.physical_names.clone(),
-            self.source.clone(),
-        )
+            physical_names: self.physical_names.clone(),
+            edges,
+            triangle_edges,
+            source: self.source.clone(),
+        })
+    }
+
+    /// For each entry of `boundary_edges`, its global edge index: only the
+    /// edges that one triangle holds (counted) are looked up, in a map of
+    /// the boundary edges.
+    fn boundary_edge_indices(&self) -> Vec<usize> {
+        let mut sides = vec![0u8; self.n_edges()];
+        for te in &self.triangle_edges {
+            for &e in te {
+                sides[e] = sides[e].saturating_add(1);
+            }
+        }
+        let wanted: super::VertexMap<[usize; 2], usize> = self
+            .boundary_edges
+            .iter()
+            .enumerate()
+            .map(|(l, be)| {
+                let [a, b] = be.vertices;
+                ([a.min(b), a.max(b)], l)
+            })
+            .collect();
+        let mut indices = vec![0usize; self.boundary_edges.len()];
+        for (e, key) in self.edges.iter().enumerate() {
+            if sides[e] == 1 {
+                if let Some(&l) = wanted.get(key) {
+                    indices[l] = e;
+                }
+            }
+        }
+        indices
     }
 }
 
@@ -230,8 +342,16 @@ impl Hierarchy {
     pub fn new(coarse: Mesh, refinements: usize, geometry: BoundaryGeometry) -> Result<Self> {
         let mut levels = Vec::with_capacity(refinements + 1);
         levels.push(coarse);
-        for _ in 0..refinements {
-            let next = levels[levels.len() - 1].refine_uniform(&geometry)?;
+        for k in 1..=refinements {
+            let next = levels[k - 1]
+                .refine_uniform(&geometry)
+                .map_err(|e| match e {
+                    Error::Mesh { file, reason } => Error::Mesh {
+                        file,
+                        reason: format!("refinement {k} of {refinements}: {reason}"),
+                    },
+                    e => e,
+                })?;
             levels.push(next);
         }
         Ok(Hierarchy { levels, geometry })
@@ -250,5 +370,125 @@ impl Hierarchy {
 
     pub fn finest(&self) -> &Mesh {
         &self.levels[self.levels.len() - 1]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A quarter disk of radius 1 around the origin: the centre, a ring of
+    /// radius 0.5 and the arc, five points each at angles 0, π/8, .., π/2.
+    /// Tags: 1 the x-axis side, 2 the arc, 3 the y-axis side. Triangles and
+    /// boundary edges are listed out of order, some turned, so that edge
+    /// numbering by first appearance is not the natural one.
+    fn quarter_disk() -> Mesh {
+        let point = |r: f64, j: usize| {
+            let a = j as f64 * std::f64::consts::FRAC_PI_8;
+            [r * a.cos(), r * a.sin()]
+        };
+        let mut vertices = vec![[0.0, 0.0]];
+        vertices.extend((0..5).map(|j| point(0.5, j)));
+        vertices.extend((0..5).map(|j| point(1.0, j)));
+        let (inner, outer) = (|j: usize| 1 + j, |j: usize| 6 + j);
+        let mut triangles = Vec::new();
+        for j in 0..4 {
+            triangles.push([0, inner(j), inner(j + 1)]);
+            triangles.push([inner(j), outer(j), outer(j + 1)]);
+            triangles.push([inner(j), outer(j + 1), inner(j + 1)]);
+        }
+        let mut shuffled: Vec<[usize; 3]> = (0..triangles.len())
+            .map(|k| triangles[(5 * k + 3) % triangles.len()])
+            .collect();
+        for (k, tri) in shuffled.iter_mut().enumerate() {
+            tri.rotate_left(k % 3);
+        }
+        let b = |vertices: [usize; 2], tag| BoundaryEdge { vertices, tag };
+        let boundary_edges = vec![
+            b([outer(2), outer(3)], 2),
+            b([inner(0), 0], 1),
+            b([outer(4), inner(4)], 3),
+            b([outer(1), outer(0)], 2),
+            b([0, inner(4)], 3),
+            b([outer(3), outer(4)], 2),
+            b([inner(0), outer(0)], 1),
+            b([outer(1), outer(2)], 2),
+        ];
+        let names = BTreeMap::from([(2, "arc".to_string()), (4, "domain".to_string())]);
+        Mesh::from_parts(
+            vertices,
+            shuffled,
+            boundary_edges,
+            names,
+            PathBuf::from("quarter.msh"),
+        )
+        .unwrap()
+    }
+
+    fn assert_same(built: &Mesh, validated: &Mesh) {
+        assert_eq!(built.vertices, validated.vertices);
+        assert_eq!(built.triangles, validated.triangles);
+        assert_eq!(built.boundary_edges, validated.boundary_edges);
+        assert_eq!(built.physical_names, validated.physical_names);
+        assert_eq!(built.edges, validated.edges);
+        assert_eq!(built.triangle_edges, validated.triangle_edges);
+        assert_eq!(built.source, validated.source);
+    }
+
+    /// The refinement built from the coarse topology is the mesh that
+    /// validating its vertices, triangles and boundary edges gives, field by
+    /// field, on every level (arc snapped onto its circle, straight sides).
+    #[test]
+    fn refinement_by_construction_is_the_validated_mesh() {
+        let geometry = BoundaryGeometry::circle(2, [0.0, 0.0], 1.0);
+        let h = Hierarchy::new(quarter_disk(), 3, geometry).unwrap();
+        for fine in &h.levels[1..] {
+            let validated = build(
+                fine.vertices.clone(),
+                fine.triangles.clone(),
+                fine.boundary_edges.clone(),
+                fine.physical_names.clone(),
+                fine.source.clone(),
+                &Labels::Parts,
+            )
+            .unwrap();
+            assert_same(fine, &validated);
+        }
+        let finest = h.finest();
+        assert_eq!(finest.n_triangles(), 12 * 4usize.pow(3));
+        for be in finest.boundary_edges.iter().filter(|be| be.tag == 2) {
+            for v in be.vertices {
+                let [x, y] = finest.vertices[v];
+                assert!((x.hypot(y) - 1.0).abs() < 1e-15);
+            }
+        }
+    }
+
+    /// A vertex snapped across the opposite side inverts child triangles:
+    /// an error naming the refinement, the child and its coarse triangle.
+    #[test]
+    fn a_snap_that_inverts_a_triangle_is_an_error() {
+        let b = |vertices: [usize; 2], tag| BoundaryEdge { vertices, tag };
+        let coarse = Mesh::from_parts(
+            vec![[0.0, 0.0], [1.0, 0.0], [0.5, 0.1]],
+            vec![[0, 1, 2]],
+            vec![b([0, 1], 1), b([1, 2], 2), b([2, 0], 2)],
+            BTreeMap::new(),
+            PathBuf::from("thin.msh"),
+        )
+        .unwrap();
+        // The bottom side on a circle below it, of radius 1.2: its midpoint
+        // (0.5, 0) goes to (0.5, 0.2), above the apex.
+        let geometry = BoundaryGeometry::circle(1, [0.5, -1.0], 1.2);
+        let e = Hierarchy::new(coarse, 2, geometry).unwrap_err().to_string();
+        for part in [
+            "thin.msh",
+            "refinement 1 of 2",
+            "triangle 0 (zero-based",
+            "child 0 of coarse triangle 0",
+            "inverted",
+        ] {
+            assert!(e.contains(part), "`{e}` does not mention `{part}`");
+        }
     }
 }

@@ -72,6 +72,63 @@ impl Labels {
     }
 }
 
+/// What is wrong with the shape of a triangle.
+pub(super) enum BadShape {
+    /// The area or the longest edge is not finite.
+    NotFinite,
+    /// |area| <= [`DEGENERATE_RTOL`] · longest edge².
+    Degenerate { area: f64, longest: f64 },
+    /// Clockwise: negative signed area.
+    Inverted { area: f64 },
+}
+
+impl BadShape {
+    /// The triangle (p0, p1, p2)'s fault, if it has one.
+    pub(super) fn of([p0, p1, p2]: [[f64; 2]; 3]) -> Option<BadShape> {
+        let area = signed_area(p0, p1, p2);
+        // Most triangles pass by far: the squared edge lengths (no hypot)
+        // show it. They lie within a few ulps of the squared `dist`s when
+        // normal, so the margin of 2 over the test below leaves no doubt;
+        // the others take the test itself.
+        let squared = |p: [f64; 2], q: [f64; 2]| {
+            let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+            dx * dx + dy * dy
+        };
+        let longest2 = squared(p0, p1).max(squared(p1, p2)).max(squared(p2, p0));
+        if longest2.is_finite()
+            && longest2 >= 1e6 * f64::MIN_POSITIVE
+            && area.is_finite()
+            && area > 2.0 * DEGENERATE_RTOL * longest2
+        {
+            return None;
+        }
+        let longest = dist(p0, p1).max(dist(p1, p2)).max(dist(p2, p0));
+        if !area.is_finite() || !longest.is_finite() {
+            Some(BadShape::NotFinite)
+        } else if area.abs() <= DEGENERATE_RTOL * longest * longest {
+            Some(BadShape::Degenerate { area, longest })
+        } else if area < 0.0 {
+            Some(BadShape::Inverted { area })
+        } else {
+            None
+        }
+    }
+
+    /// What the fault is, for an error message.
+    pub(super) fn what(&self) -> String {
+        match self {
+            BadShape::NotFinite => "the area is not finite (coordinates too large)".into(),
+            BadShape::Degenerate { area, longest } => format!(
+                "degenerate triangle (area {area:e}, longest edge {longest:e}; \
+                 |area| <= {DEGENERATE_RTOL:e} * longest edge^2)"
+            ),
+            BadShape::Inverted { area } => {
+                format!("inverted (clockwise) triangle, signed area {area:e} < 0")
+            }
+        }
+    }
+}
+
 pub(super) fn build(
     vertices: Vec<[f64; 2]>,
     triangles: Vec<[usize; 3]>,
@@ -119,29 +176,19 @@ pub(super) fn build(
 
     // Per-triangle geometry.
     for (t, tri) in triangles.iter().enumerate() {
-        let [p0, p1, p2] = tri.map(|v| vertices[v]);
-        let area = signed_area(p0, p1, p2);
-        let longest = dist(p0, p1).max(dist(p1, p2)).max(dist(p2, p0));
-        if !area.is_finite() || !longest.is_finite() {
+        if let Some(bad) = BadShape::of(tri.map(|v| vertices[v])) {
+            let advice = match bad {
+                BadShape::Inverted { .. } => {
+                    "; triangles must be counter-clockwise (they are not reoriented: \
+                     FreeFEM rejects them too); fix the orientation of the surface \
+                     in the .geo file"
+                }
+                _ => "",
+            };
             return Err(err(format!(
-                "{}: the area is not finite (coordinates too large)",
-                labels.triangle(t, tri)
-            )));
-        }
-        if area.abs() <= DEGENERATE_RTOL * longest * longest {
-            return Err(err(format!(
-                "{}: degenerate triangle (area {area:e}, longest edge {longest:e}; \
-                 |area| <= {DEGENERATE_RTOL:e} * longest edge^2)",
-                labels.triangle(t, tri)
-            )));
-        }
-        if area < 0.0 {
-            return Err(err(format!(
-                "{}: inverted (clockwise) triangle, signed area {area:e} < 0; \
-                 triangles must be counter-clockwise (they are not reoriented: \
-                 FreeFEM rejects them too); fix the orientation of the surface \
-                 in the .geo file",
-                labels.triangle(t, tri)
+                "{}: {}{advice}",
+                labels.triangle(t, tri),
+                bad.what()
             )));
         }
     }
@@ -287,4 +334,62 @@ pub(super) fn build(
         triangle_edges,
         source,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The test without the squared-length shortcut.
+    fn slow(p: [[f64; 2]; 3]) -> Option<String> {
+        let [p0, p1, p2] = p;
+        let area = signed_area(p0, p1, p2);
+        let longest = dist(p0, p1).max(dist(p1, p2)).max(dist(p2, p0));
+        if !area.is_finite() || !longest.is_finite() {
+            Some("not finite".into())
+        } else if area.abs() <= DEGENERATE_RTOL * longest * longest {
+            Some(format!("degenerate {area:e} {longest:e}"))
+        } else if area < 0.0 {
+            Some(format!("inverted {area:e}"))
+        } else {
+            None
+        }
+    }
+
+    fn fast(p: [[f64; 2]; 3]) -> Option<String> {
+        BadShape::of(p).map(|b| match b {
+            BadShape::NotFinite => "not finite".into(),
+            BadShape::Degenerate { area, longest } => format!("degenerate {area:e} {longest:e}"),
+            BadShape::Inverted { area } => format!("inverted {area:e}"),
+        })
+    }
+
+    /// The shortcut decides as the full test does: triangles of every
+    /// scale, with the apex at heights around the degenerate threshold, on
+    /// either side.
+    #[test]
+    fn the_shortcut_decides_as_the_full_test() {
+        let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut unit = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut flagged = 0;
+        for _ in 0..200_000 {
+            let scale = 10f64.powf(unit() * 640.0 - 320.0);
+            let a = [unit() * scale, unit() * scale];
+            let b = [a[0] + (unit() + 0.1) * scale, a[1] + (unit() - 0.5) * scale];
+            // Height over the base as a multiple of the threshold's.
+            let h = (unit() - 0.5) * 8.0 * DEGENERATE_RTOL * 10f64.powf(unit() * 13.0);
+            let t = unit();
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            let c = [a[0] + t * dx - h * dy, a[1] + t * dy + h * dx];
+            let p = [a, b, c];
+            assert_eq!(fast(p), slow(p), "{p:?}");
+            flagged += usize::from(slow(p).is_some());
+        }
+        assert!(flagged > 1000, "{flagged}");
+    }
 }
