@@ -584,6 +584,31 @@ fn element_matrices(
     }
 }
 
+/// ∫_T form(φ_k, φ_k) on each triangle T for the local basis function k of
+/// `space` (an element's own dof, e.g. its bubble): one value per triangle.
+pub fn element_diagonal(
+    space: &Space,
+    rule: &TriangleRule,
+    form: impl Fn(&ShapeValue, &ShapeValue, &QuadPoint) -> f64,
+    k: usize,
+) -> Vec<f64> {
+    let mesh = space.mesh;
+    let tab = Tabulation::new(space.element, rule);
+    let mut s = [ShapeValue::default(); MAX_LOCAL];
+    (0..mesh.n_triangles())
+        .map(|t| {
+            let g = TriangleGeometry::new(mesh, t);
+            quad_points(&g, t, rule)
+                .enumerate()
+                .map(|(q, p)| {
+                    tab.fill_shapes(&g, q, &mut s);
+                    p.weight * form(&s[k], &s[k], &p)
+                })
+                .sum()
+        })
+        .collect()
+}
+
 /// Assembles ∫ form(v, x) over the mesh, one entry per test dof.
 pub fn assemble_linear(
     test: &Space,

@@ -13,8 +13,8 @@ use super::{
     SkeletonTransfers,
 };
 use crate::assembly::{
-    assemble_bilinear_eliminated, assemble_linear, integrate_fields, laplace, lumped_mass, mass,
-    quadrature_points, DofNumbering, QuadPoint, ShapeValue,
+    assemble_bilinear_eliminated, assemble_linear, element_diagonal, integrate_fields, laplace,
+    lumped_mass, mass, quadrature_points, DofNumbering, QuadPoint, ShapeValue,
 };
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionSet, SetEvaluator};
@@ -356,6 +356,49 @@ impl<'m> MembraneSystem<'m> {
         }
     }
 
+    /// The P1⊕B3 stiffness as the blocks it is: ∫_T ∇φ·∇b = ∇φ·∮_∂T b n = 0
+    /// for a P1 function φ and the cubic bubble b of a straight triangle, so
+    /// A = diag(K, D) with K the P1 stiffness (one-point rule: constant
+    /// gradients) and D_t = ∫_T |∇b_t|². Quadrature would give the coupling
+    /// as round-off; left out, A has less than half the entries. Bubbles
+    /// are numbered after the vertices and never fixed, so the free
+    /// unknowns are the free vertices, then every bubble.
+    fn p1_bubble_stiffness(&self, rule: &TriangleRule) -> (SparseColMat<usize, f64>, Vec<f64>) {
+        let n_vertices = self.mesh.n_vertices();
+        let p1 = Space::new(self.mesh, Element::P1);
+        let vertices = DofNumbering {
+            free_index: self.numbering.free_index[..n_vertices].to_vec(),
+            free_dofs: (self.numbering.free_dofs.iter())
+                .copied()
+                .take_while(|&d| d < n_vertices)
+                .collect(),
+        };
+        let (k, mut shift) = assemble_bilinear_eliminated(
+            &p1,
+            &p1,
+            &TriangleRule::exact_for(0),
+            laplace,
+            &vertices,
+            &vertices,
+            &self.boundary_values[..n_vertices],
+        );
+        let bubble = self.u_space.element.n_local() - 1;
+        let d = element_diagonal(&self.u_space, rule, laplace, bubble);
+        let n_free_vertices = vertices.n_free();
+        let n = n_free_vertices + d.len();
+        debug_assert_eq!(n, self.numbering.n_free(), "free vertices, then bubbles");
+        let (symbolic, mut values) = k.into_parts();
+        let (_, _, mut col_ptr, _, mut rows) = symbolic.into_parts();
+        for (t, &dt) in d.iter().enumerate() {
+            rows.push(n_free_vertices + t);
+            values.push(dt);
+            col_ptr.push(rows.len());
+        }
+        shift.resize(n, 0.0);
+        let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, rows);
+        (SparseColMat::new(symbolic, values), shift)
+    }
+
     /// Rows of the lower obstacle: λ has this many entries per bound.
     fn n_rows(&self) -> usize {
         self.lambda_space.n_dofs()
@@ -590,8 +633,18 @@ impl ModelSystem for MembraneSystem<'_> {
         // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
         let fixed_values = &self.boundary_values;
         let numbering = &self.numbering;
-        let (k, shift) =
-            assemble_bilinear_eliminated(u, u, &rule, laplace, numbering, numbering, fixed_values);
+        let (k, shift) = match self.pair {
+            ElementPair::P1bP0 => self.p1_bubble_stiffness(&rule),
+            _ => assemble_bilinear_eliminated(
+                u,
+                u,
+                &rule,
+                laplace,
+                numbering,
+                numbering,
+                fixed_values,
+            ),
+        };
         let f_full = match g.as_constant() {
             Some(g) => assemble_linear(u, &rule, |v, _| g * v.value),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
