@@ -31,7 +31,6 @@ pub fn pcg(
     let mut r = vec![0.0; n];
     let mut z = vec![0.0; n];
     let mut q = vec![0.0; n];
-    let zero = vec![0.0; n];
     let mut iterations = 0;
     // The recurrence's residual drifts from b − A x near round-off: CG
     // restarts from x until the true residual meets the target.
@@ -45,16 +44,15 @@ pub fn pcg(
         let mut rz = dot(&r, &z);
         while iterations < max_iter {
             iterations += 1;
-            // q = A p (the residual of 0 − A p, negated).
-            residual(a, &zero, &p, &mut q);
-            let pq = -dot(&p, &q);
+            product(a, &p, &mut q);
+            let pq = dot(&p, &q);
             if pq.is_nan() || pq <= 0.0 {
                 break; // not positive definite, or p = 0
             }
             let alpha = rz / pq;
             for i in 0..n {
                 x[i] += alpha * p[i];
-                r[i] += alpha * q[i];
+                r[i] -= alpha * q[i];
             }
             if norm2(&r) <= target {
                 break;
@@ -84,15 +82,32 @@ fn dot(u: &[f64], v: &[f64]) -> f64 {
     u.iter().zip(v).map(|(a, b)| a * b).sum()
 }
 
-/// r = b − A x (A in compressed columns, any pattern).
+/// r = b − A x for a symmetric A stored whole in compressed columns:
+/// column i is row i, so each r_i is one dot product (reads only, where
+/// the column-oriented product scatters into r).
 pub(crate) fn residual(a: &SparseColMat<usize, f64>, b: &[f64], x: &[f64], r: &mut [f64]) {
-    r.copy_from_slice(b);
     let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
-    for j in 0..a.ncols() {
-        let xj = x[j];
-        for k in col_ptr[j]..col_ptr[j + 1] {
-            r[rows[k]] -= values[k] * xj;
-        }
+    for (i, ri) in r.iter_mut().enumerate() {
+        let (start, end) = (col_ptr[i], col_ptr[i + 1]);
+        let ax: f64 = rows[start..end]
+            .iter()
+            .zip(&values[start..end])
+            .map(|(&j, &v)| v * x[j])
+            .sum();
+        *ri = b[i] - ax;
+    }
+}
+
+/// q = A p for a symmetric A stored whole (as [`residual`]).
+fn product(a: &SparseColMat<usize, f64>, p: &[f64], q: &mut [f64]) {
+    let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    for (i, qi) in q.iter_mut().enumerate() {
+        let (start, end) = (col_ptr[i], col_ptr[i + 1]);
+        *qi = rows[start..end]
+            .iter()
+            .zip(&values[start..end])
+            .map(|(&j, &v)| v * p[j])
+            .sum();
     }
 }
 
