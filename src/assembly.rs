@@ -304,8 +304,8 @@ impl ElementMatrix {
             dofs.coupled.clear();
             dofs.multipliers.clear();
             element(e, &mut dofs);
-            element_dofs.extend(dofs.coupled.iter().copied());
-            element_dofs.extend(dofs.multipliers.iter().map(|&d| d | MULTIPLIER));
+            element_dofs.extend(dofs.coupled.iter().map(|&d| index31(d)));
+            element_dofs.extend(dofs.multipliers.iter().map(|&d| index31(d) | MULTIPLIER));
             element_ptr.push(element_dofs.len());
         }
         let rows = ElementLists {
@@ -331,8 +331,8 @@ impl ElementMatrix {
             rows.clear();
             cols.clear();
             element(e, &mut rows, &mut cols);
-            row_dofs.extend_from_slice(&rows);
-            col_dofs.extend_from_slice(&cols);
+            row_dofs.extend(rows.iter().map(|&d| index31(d)));
+            col_dofs.extend(cols.iter().map(|&d| index31(d)));
             row_ptr.push(row_dofs.len());
             col_ptr.push(col_dofs.len());
         }
@@ -393,17 +393,27 @@ impl ElementMatrix {
 
 /// A multiplier's dof in [`ElementMatrix::new`]'s element lists: flagged by
 /// the top bit (multipliers do not couple with each other).
-const MULTIPLIER: usize = 1 << (usize::BITS - 1);
+const MULTIPLIER: u32 = 1 << 31;
+
+/// A dof or element index in 31 bits (the pattern's lists: at 8M triangles
+/// they are its peak, 4 bytes an entry where usize takes 8).
+fn index31(i: usize) -> u32 {
+    assert!(
+        i < MULTIPLIER as usize,
+        "{i}: assembly's pattern indexes dofs and elements in 31 bits"
+    );
+    i as u32
+}
 
 /// Each element's dofs, flat: element e's are `dofs[ptr[e]..ptr[e + 1]]`.
 #[derive(Clone, Copy)]
 struct ElementLists<'a> {
     ptr: &'a [usize],
-    dofs: &'a [usize],
+    dofs: &'a [u32],
 }
 
 impl ElementLists<'_> {
-    fn of(&self, e: usize) -> &[usize] {
+    fn of(&self, e: usize) -> &[u32] {
         &self.dofs[self.ptr[e]..self.ptr[e + 1]]
     }
 }
@@ -419,20 +429,24 @@ fn pattern(
 ) -> SymbolicSparseColMat<usize> {
     let n_elements = cols.ptr.len() - 1;
     // The elements of each column (a counting sort).
+    index31(ncols);
     let mut col_start = vec![0usize; ncols + 1];
     for &d in cols.dofs {
-        assert!(d & !MULTIPLIER < ncols, "an element dof outside the matrix");
-        col_start[(d & !MULTIPLIER) + 1] += 1;
+        let j = (d & !MULTIPLIER) as usize;
+        assert!(j < ncols, "an element dof outside the matrix");
+        col_start[j + 1] += 1;
     }
     for j in 0..ncols {
         col_start[j + 1] += col_start[j];
     }
+    // Column j's elements, each flagged when j is one of its multipliers.
     let mut next = col_start.clone();
-    let mut col_elements = vec![(0usize, false); cols.dofs.len()];
+    let mut col_elements = vec![0u32; cols.dofs.len()];
     for e in 0..n_elements {
+        let element = index31(e);
         for &d in cols.of(e) {
-            let j = d & !MULTIPLIER;
-            col_elements[next[j]] = (e, d & MULTIPLIER != 0);
+            let j = (d & !MULTIPLIER) as usize;
+            col_elements[next[j]] = element | (d & MULTIPLIER);
             next[j] += 1;
         }
     }
@@ -440,15 +454,16 @@ fn pattern(
     let mut col_ptr = Vec::with_capacity(ncols + 1);
     col_ptr.push(0usize);
     let mut row_idx: Vec<usize> = Vec::new();
-    let mut seen = vec![usize::MAX; nrows];
+    let mut seen = vec![u32::MAX; nrows];
     for j in 0..ncols {
-        let start = row_idx.len();
-        for &(e, j_multiplier) in &col_elements[col_start[j]..col_start[j + 1]] {
+        let (start, column) = (row_idx.len(), j as u32);
+        for &tagged in &col_elements[col_start[j]..col_start[j + 1]] {
+            let (e, j_multiplier) = ((tagged & !MULTIPLIER) as usize, tagged & MULTIPLIER != 0);
             for &d in rows.of(e) {
-                let (i, i_multiplier) = (d & !MULTIPLIER, d & MULTIPLIER != 0);
+                let (i, i_multiplier) = ((d & !MULTIPLIER) as usize, d & MULTIPLIER != 0);
                 assert!(i < nrows, "an element dof outside the matrix");
-                if !(j_multiplier && i_multiplier) && seen[i] != j {
-                    seen[i] = j;
+                if !(j_multiplier && i_multiplier) && seen[i] != column {
+                    seen[i] = column;
                     row_idx.push(i);
                 }
             }
