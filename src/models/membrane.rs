@@ -51,9 +51,10 @@ impl ModelKind for Membrane {
         BYTES_PER_UNKNOWN
     }
 
-    /// No factorisation: the ball at 513² and 1025² (1.3M and 5.2M
-    /// unknowns) peaks at 404 and 393 bytes per unknown (529 MB, 2061 MB);
-    /// 450 keeps the estimate above the peak, within 1.15× of it.
+    /// No factorisation: the ball at 513², 1025² and 2049² (1.3M, 5.2M and
+    /// 21M unknowns) peaks at 405, 395 and 378 bytes per unknown (507 MB,
+    /// 1977 MB, 7564 MB); 450 keeps the estimate above the peak, within
+    /// 1.2× of it.
     fn multigrid_bytes_per_unknown(&self) -> f64 {
         450.0
     }

@@ -53,6 +53,9 @@ pub struct SolverSpec {
     /// one; 2 (the default) or more two threads on the elimination tree
     /// (src/linalg/tree_ldlt.rs). Solves stay sequential. Same results to
     /// round-off (docs/work-precision.md, "Two threads on the elimination tree").
+    /// With `method = "multigrid"`, 2 or more assemble the coarser levels
+    /// beside the finest and set the finest up beside the coarser levels'
+    /// solves (the same results).
     #[serde(default = "default_threads")]
     pub threads: i64,
     /// The linear solver of every method's systems: "direct" (the sparse
