@@ -99,7 +99,7 @@ fn run_case(n: usize, method: &str) {
         "mg" => {
             let t = Instant::now();
             let prolongations = levels.prolongations;
-            let mg = Multigrid::new(a, prolongations.clone(), MultigridOptions::default())
+            let mg = Multigrid::new(&a, &prolongations, MultigridOptions::default())
                 .expect("multigrid setup");
             let setup_s = t.elapsed().as_secs_f64();
             let t = Instant::now();
@@ -109,14 +109,7 @@ fn run_case(n: usize, method: &str) {
             assert!(report.converged, "{report:?}");
             let t = Instant::now();
             let mut y = vec![0.0; b.len()];
-            let cg = pcg(
-                mg.matrix(),
-                &b,
-                &mut y,
-                |r, z| mg.precondition(r, z),
-                RTOL,
-                100,
-            );
+            let cg = pcg(&a, &b, &mut y, |r, z| mg.precondition(r, z), RTOL, 100);
             let pcg_s = t.elapsed().as_secs_f64();
             assert!(cg.converged, "{cg:?}");
             let peak_mb = peak_rss_kb().unwrap_or(0) as f64 / 1024.0;
@@ -125,7 +118,7 @@ fn run_case(n: usize, method: &str) {
                 smoother: Smoother::Jacobi { omega: 0.8 },
                 ..MultigridOptions::default()
             };
-            let mg_j = Multigrid::new(mg.matrix().clone(), prolongations, jacobi).expect("setup");
+            let mg_j = Multigrid::new(&a, &prolongations, jacobi).expect("setup");
             let mut z = vec![0.0; b.len()];
             let jr = mg_j.solve(&b, &mut z, RTOL, 200);
             print!(

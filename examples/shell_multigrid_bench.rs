@@ -186,8 +186,8 @@ fn run_multigrid(
     let systems: Vec<&NaghdiSystem> = coarser.iter().chain([&finest]).collect();
     let shell_levels = field_prolongations(hierarchy, &systems).expect("prolongations");
     let mg = Multigrid::new(
-        problem.matrix,
-        shell_levels.prolongations,
+        &problem.matrix,
+        &shell_levels.prolongations,
         MultigridOptions {
             pre: smoothing,
             post: smoothing,
@@ -199,7 +199,7 @@ fn run_multigrid(
     let t = Instant::now();
     let mut x = vec![0.0; problem.rhs.len()];
     let cg = pcg(
-        mg.matrix(),
+        &problem.matrix,
         &problem.rhs,
         &mut x,
         |r, z| mg.precondition(r, z),

@@ -16,7 +16,7 @@ use crate::plot;
 use crate::scene::{Alpha, ColdStartSpec, Method, Model, PlotKind, Scene, SolverSpec, StepForm};
 use crate::solvers::active_set::{ActiveSetOptions, ColdStart};
 use crate::solvers::dual_accelerated::DualAcceleratedOptions;
-use crate::solvers::multigrid_newton::{MultigridLevels, MultigridNewtonOptions};
+use crate::solvers::multigrid_newton::{LevelsHandle, MultigridLevels, MultigridNewtonOptions};
 use crate::solvers::spectrum::SpectrumEstimate;
 use crate::solvers::uzawa::{UzawaOptions, UzawaStep};
 use crate::solvers::uzawa_split::UzawaSplitOptions;
@@ -25,7 +25,6 @@ use crate::solvers::{
 };
 use crate::transfer::prolong_dofs;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 /// What a run reports besides its result file (one row of a study table).
@@ -620,7 +619,7 @@ pub fn solve_on<'m>(
         Some(h) => (assembled(scene, mesh), Some(multigrid_levels(scene, h))),
     };
     let (system, problem) = assembled_finest?;
-    let levels = levels.transpose()?.map(Arc::new);
+    let levels = levels.transpose()?.map(LevelsHandle::new);
     phase_end("assembly");
     let warm = match start {
         Start::Scene(_) => nested_start(scene, system.as_ref(), &problem)?,

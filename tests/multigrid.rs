@@ -246,7 +246,7 @@ fn galerkin_operators_are_the_coarse_stiffness_matrices() {
         let levels = P1Levels::new(&h, dirichlet).unwrap();
         let finest = h.n_levels() - 1;
         let a = p1_stiffness(h.finest(), &levels.numberings[finest]);
-        let mg = Multigrid::new(a, levels.prolongations, MultigridOptions::default()).unwrap();
+        let mg = Multigrid::new(&a, &levels.prolongations, MultigridOptions::default()).unwrap();
         for l in 0..finest {
             let galerkin = dense(&mg.operator(l));
             let assembled = dense(&p1_stiffness(&h.levels[l], &levels.numberings[l]));
@@ -319,12 +319,7 @@ const PCG_BOUND: usize = 12;
 fn vcycle_and_pcg_converge_independently_of_the_level() {
     for levels in 3..=6 {
         let (prolongations, a, b) = square_poisson(levels);
-        let mg = Multigrid::new(
-            a.clone(),
-            prolongations.clone(),
-            MultigridOptions::default(),
-        )
-        .unwrap();
+        let mg = Multigrid::new(&a, &prolongations, MultigridOptions::default()).unwrap();
         let direct = direct_solve(&a, &b);
 
         let mut x = vec![0.0; b.len()];
@@ -363,7 +358,7 @@ fn vcycle_and_pcg_converge_independently_of_the_level() {
                 order,
                 ..MultigridOptions::default()
             };
-            let m = Multigrid::new(a.clone(), prolongations.clone(), options).unwrap();
+            let m = Multigrid::new(&a, &prolongations, options).unwrap();
             let mut z = vec![0.0; b.len()];
             let r = m.solve(&b, &mut z, 1e-12, 100);
             assert!(
@@ -457,8 +452,8 @@ fn shell_multigrid_preconditions_the_thick_shell() {
         assert_eq!(shell.sizes[refinements], problem.n());
         let direct = direct_solve(&problem.matrix, &problem.rhs);
         let mg = Multigrid::new(
-            problem.matrix.clone(),
-            shell.prolongations,
+            &problem.matrix,
+            &shell.prolongations,
             MultigridOptions::default(),
         )
         .unwrap();

@@ -99,7 +99,7 @@ pub(crate) fn residual(a: &SparseColMat<usize, f64>, b: &[f64], x: &[f64], r: &m
 }
 
 /// q = A p for a symmetric A stored whole (as [`residual`]).
-fn product(a: &SparseColMat<usize, f64>, p: &[f64], q: &mut [f64]) {
+pub(crate) fn product(a: &SparseColMat<usize, f64>, p: &[f64], q: &mut [f64]) {
     let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
     for (i, qi) in q.iter_mut().enumerate() {
         let (start, end) = (col_ptr[i], col_ptr[i + 1]);

@@ -6,7 +6,7 @@
 //! The matrices are stored whole (both triangles) in compressed columns:
 //! Gauss–Seidel reads row i of a symmetric A as its column i.
 
-use super::pcg::{norm2, pcg, residual, CgReport};
+use super::pcg::{norm2, pcg, product, residual, CgReport};
 use super::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::error::{Error, Result};
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
@@ -103,8 +103,6 @@ struct Level {
 ///   diagonal (diagonal checked; symmetry not, it is the caller's: a
 ///   Galerkin product of a symmetric matrix is)
 pub struct Multigrid {
-    /// The matrix as given (the finest level in its own numbering).
-    given: SparseColMat<usize, f64>,
     levels: Vec<Level>,
     /// In the levels' sweep numbering.
     prolongations: Vec<SparseColMat<usize, f64>>,
@@ -143,10 +141,11 @@ impl Multigrid {
     /// The hierarchy of `a` (the finest level) with the Galerkin operators
     /// of `prolongations` (coarsest first: `prolongations[l]` maps level l
     /// to l + 1, the last one into `a`'s unknowns), and the coarsest
-    /// operator factorised.
+    /// operator factorised. Every level is held in its sweep order, `a`'s
+    /// too: the caller keeps `a` as given if it needs it.
     pub fn new(
-        a: SparseColMat<usize, f64>,
-        prolongations: Vec<SparseColMat<usize, f64>>,
+        a: &SparseColMat<usize, f64>,
+        prolongations: &[SparseColMat<usize, f64>],
         options: MultigridOptions,
     ) -> Result<Self> {
         if a.nrows() != a.ncols() {
@@ -160,7 +159,7 @@ impl Multigrid {
         // (`matrix`) beside its copy in sweep order.
         let mut operators: Vec<SparseColMat<usize, f64>> = Vec::new();
         for (l, p) in prolongations.iter().enumerate().rev() {
-            let fine = operators.last().unwrap_or(&a);
+            let fine = operators.last().unwrap_or(a);
             if p.nrows() != fine.nrows() {
                 return Err(Error::numerical(
                     STAGE,
@@ -186,7 +185,7 @@ impl Multigrid {
         operators.reverse();
         let levels = operators
             .iter()
-            .chain([&a])
+            .chain([a])
             .enumerate()
             .map(|(l, a)| {
                 let diagonal = positive_diagonal(l, a)?;
@@ -213,7 +212,6 @@ impl Multigrid {
             .collect();
         let coarsest = factor_coarsest(&levels[0].a, &options)?;
         Ok(Multigrid {
-            given: a,
             levels,
             prolongations,
             coarsest,
@@ -237,9 +235,23 @@ impl Multigrid {
         renumbered(&self.levels[l].a, order, order)
     }
 
-    /// The finest level's matrix (the one given).
-    pub fn matrix(&self) -> &SparseColMat<usize, f64> {
-        &self.given
+    /// y = A x with the finest level's operator as stored (the terms of
+    /// [`Multigrid::add_to_level`] included), x and y in the given
+    /// matrix's numbering.
+    pub fn apply(&self, x: &[f64]) -> Vec<f64> {
+        let order = self.finest_order();
+        let x_swept: Vec<f64> = order.iter().map(|&i| x[i]).collect();
+        let mut y_swept = vec![0.0; x.len()];
+        product(
+            &self.levels[self.levels.len() - 1].a,
+            &x_swept,
+            &mut y_swept,
+        );
+        let mut y = vec![0.0; x.len()];
+        for (&i, v) in order.iter().zip(y_swept) {
+            y[i] = v;
+        }
+        y
     }
 
     /// The finest level's sweep order: `order[k]` is the given matrix's
@@ -256,8 +268,7 @@ impl Multigrid {
     }
 
     /// Adds v to entry (i, j) of level l's operator, both in the level's
-    /// sweep numbering; false where (i, j) lies outside its pattern. The
-    /// given matrix ([`Multigrid::matrix`]) stays as given; call
+    /// sweep numbering; false where (i, j) lies outside its pattern. Call
     /// [`Multigrid::operators_changed`] before the next cycle.
     pub fn add_to_level(&mut self, l: usize, i: usize, j: usize, v: f64) -> bool {
         let a = &mut self.levels[l].a;
@@ -320,22 +331,28 @@ impl Multigrid {
 
     /// V-cycles from x until ‖b − A x‖₂ ≤ `rtol` ‖b‖₂ or `max_cycles`.
     pub fn solve(&self, b: &[f64], x: &mut [f64], rtol: f64, max_cycles: usize) -> CycleReport {
-        let a = self.matrix();
+        let finest = self.levels.len() - 1;
+        let (a, order) = (&self.levels[finest].a, &self.levels[finest].order);
+        let b_swept: Vec<f64> = order.iter().map(|&i| b[i]).collect();
+        let mut x_swept: Vec<f64> = order.iter().map(|&i| x[i]).collect();
         let norm_b = norm2(b);
         let mut r = vec![0.0; b.len()];
         let mut relative = |x: &[f64]| {
-            residual(a, b, x, &mut r);
+            residual(a, &b_swept, x, &mut r);
             match norm_b {
                 0.0 => norm2(&r),
                 _ => norm2(&r) / norm_b,
             }
         };
-        let mut residuals = vec![relative(x)];
+        let mut residuals = vec![relative(&x_swept)];
         let mut cycles = 0;
         while residuals[cycles] > rtol && cycles < max_cycles {
-            self.cycle(b, x);
+            self.cycle_at(finest, &b_swept, &mut x_swept);
             cycles += 1;
-            residuals.push(relative(x));
+            residuals.push(relative(&x_swept));
+        }
+        for (&i, v) in order.iter().zip(x_swept) {
+            x[i] = v;
         }
         CycleReport {
             converged: residuals[cycles] <= rtol,

@@ -51,7 +51,7 @@ use crate::error::{Error, Result};
 use crate::linalg::{mat_vec, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 const STAGE: &str = "multigrid";
@@ -69,6 +69,35 @@ pub struct MultigridLevels {
     /// `lifts[l]`: what the boundary values add to `prolongations[l] u` (the
     /// start of level l + 1 is the interpolant of level l's whole solution).
     pub lifts: Vec<Vec<f64>>,
+}
+
+/// The coarser levels handed to one solve, which takes them: each coarser
+/// problem is dropped once its level is solved, so the finest level's
+/// Newton steps run without them (a third of the finest problem's memory).
+#[derive(Clone)]
+pub struct LevelsHandle(Arc<Mutex<Option<MultigridLevels>>>);
+
+impl LevelsHandle {
+    pub fn new(levels: MultigridLevels) -> Self {
+        LevelsHandle(Arc::new(Mutex::new(Some(levels))))
+    }
+
+    /// The levels, once (None after a solve took them).
+    fn take(&self) -> Option<MultigridLevels> {
+        self.0
+            .lock()
+            .map(|mut levels| levels.take())
+            .unwrap_or(None)
+    }
+}
+
+impl std::fmt::Debug for LevelsHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0.try_lock() {
+            Ok(levels) => levels.fmt(f),
+            Err(_) => f.write_str("LevelsHandle(in use)"),
+        }
+    }
 }
 
 impl std::fmt::Debug for MultigridLevels {
@@ -92,9 +121,9 @@ pub struct MultigridNewtonOptions {
     /// CG iterations per Newton step.
     pub max_cg: usize,
     pub show_progress: bool,
-    /// The hierarchy's coarser levels; the pipeline sets them (None: an
-    /// error naming what is missing).
-    pub levels: Option<Arc<MultigridLevels>>,
+    /// The hierarchy's coarser levels; the pipeline sets them (None, or
+    /// taken by an earlier solve: an error naming what is missing).
+    pub levels: Option<LevelsHandle>,
     pub cycle: MultigridOptions,
     /// With 2 or more, the finest level is set up (condensed, its V-cycle
     /// built) on a second thread while the coarser levels solve.
@@ -412,10 +441,9 @@ impl Condensed {
         t * residual_slope + 0.5 * t * t * curvature + interior
     }
 
-    /// The iterate of u with its clamped values, from one product with K.
-    fn iterate(&self, k: &SparseColMat<usize, f64>, u: &[f64], clamped: &Clamped) -> Iterate {
+    /// The iterate of u with its clamped values, given K u.
+    fn iterate(&self, ku: Vec<f64>, u: &[f64], clamped: &Clamped) -> Iterate {
         let n = self.skeleton.len() + self.interior.len();
-        let ku = mat_vec(k, u);
         let lambda = self.multipliers(clamped);
         let (mut x, mut ax, mut ct_lambda) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         let mut cx = clamped.s.clone();
@@ -481,14 +509,15 @@ struct HessianCycle {
 }
 
 impl HessianCycle {
-    /// The hierarchy of K (kept as the given matrix: [`HessianCycle::k`]).
+    /// The hierarchy of K, which holds K in sweep order only: products
+    /// with K are [`HessianCycle::k_product`].
     fn new(
         condensed: &Condensed,
-        k: SparseColMat<usize, f64>,
+        k: &SparseColMat<usize, f64>,
         prolongations: &[SparseColMat<usize, f64>],
         options: MultigridOptions,
     ) -> Result<Self> {
-        let mg = Multigrid::new(k, prolongations.to_vec(), options)?;
+        let mg = Multigrid::new(k, prolongations, options)?;
         let mut position = vec![0; condensed.n_skeleton()];
         for (k, &i) in mg.finest_order().iter().enumerate() {
             position[i] = k;
@@ -510,9 +539,21 @@ impl HessianCycle {
         })
     }
 
-    /// K, the skeleton block of A.
-    fn k(&self) -> &SparseColMat<usize, f64> {
-        self.mg.matrix()
+    /// K u (skeleton numbering): the finest operator H = K + Σ w_i c_i c_iᵀ
+    /// (the terms it holds) applied, the terms taken off. They are of K's
+    /// size (w_i |c_i|² ~ d_T), so nothing cancels.
+    fn k_product(&self, condensed: &Condensed, u: &[f64]) -> Vec<f64> {
+        let mut ku = self.mg.apply(u);
+        for (j, &i) in self.applied.iter().enumerate() {
+            if i != NONE {
+                let w = condensed.d[j] / (condensed.beta[i] * condensed.beta[i]);
+                let s = w * condensed.row_product(i, u);
+                for p in condensed.row_ptr[i]..condensed.row_ptr[i + 1] {
+                    ku[condensed.row_cols[p]] -= s * condensed.row_vals[p];
+                }
+            }
+        }
+        ku
     }
 
     /// The operators made those of the active set of `clamped`.
@@ -610,72 +651,86 @@ pub fn multigrid_newton(
     options: &MultigridNewtonOptions,
 ) -> Result<SolveReport> {
     let clock = Instant::now();
-    let levels = options.levels.as_ref().ok_or_else(|| {
-        Error::numerical(
-            STAGE,
-            "levels",
-            "no hierarchy: the multigrid method solves on the meshes of mesh.refine, given with the problem of the finest",
-        )
-    })?;
-    if levels.prolongations.len() != levels.coarser.len()
-        || levels.lifts.len() != levels.coarser.len()
-    {
+    let levels = options
+        .levels
+        .as_ref()
+        .and_then(LevelsHandle::take)
+        .ok_or_else(|| {
+            Error::numerical(
+                STAGE,
+                "levels",
+                "no hierarchy: the multigrid method solves on the meshes of mesh.refine, given with the problem of the finest (once)",
+            )
+        })?;
+    let MultigridLevels {
+        coarser,
+        prolongations,
+        lifts,
+    } = levels;
+    if prolongations.len() != coarser.len() || lifts.len() != coarser.len() {
         return Err(Error::numerical(
             STAGE,
             "levels",
             format!(
                 "{} coarser problems but {} prolongations and {} lifts",
-                levels.coarser.len(),
-                levels.prolongations.len(),
-                levels.lifts.len()
+                coarser.len(),
+                prolongations.len(),
+                lifts.len()
             ),
         ));
     }
-    let problems: Vec<&ContactProblem> = levels.coarser.iter().chain([problem]).collect();
-    let finest = problems.len() - 1;
+    let finest = coarser.len();
+    let transfers = Transfers {
+        prolongations: &prolongations,
+        lifts: &lifts,
+        finest,
+    };
     let mut builder = ReportBuilder::new("multigrid", clock, 0.0, 0.0)
         .with_history(&["level", "cg_iterations", "step_length", "active_changes"])
         .iterating(
             "multigrid",
-            options.max_iter * problems.len(),
+            options.max_iter * (finest + 1),
             options.tol,
             options.show_progress,
         );
-    let set_up = |l: usize| LevelSetup::new(problems[l], &levels.prolongations[..l], options);
-    let mut per_level = Vec::with_capacity(problems.len());
-    let mut u: Vec<f64> = Vec::new();
+    let set_up =
+        |problem: &ContactProblem, l: usize| LevelSetup::new(problem, &prolongations[..l], options);
+    let mut per_level = Vec::with_capacity(finest + 1);
     // Levels 0 … finest − 1 from the coarsest, each from the previous one's
-    // u; the finest level's set-up (most of a level's cost before its first
-    // Newton step) is made meanwhile on a second thread when there is one.
-    let mut solve_coarser = |builder: &mut ReportBuilder| -> Result<Vec<f64>> {
+    // u, each problem dropped once solved; the finest level's set-up (most
+    // of a level's cost before its first Newton step) is made meanwhile on
+    // a second thread when there is one.
+    let solve_coarser = |builder: &mut ReportBuilder,
+                         per_level: &mut Vec<(usize, usize)>|
+     -> Result<Vec<f64>> {
         let mut u: Vec<f64> = Vec::new();
-        for l in 0..finest {
-            let solved = solve_level(set_up(l)?, problems[l], &u, l, levels, options, builder)?;
+        for (l, level_problem) in coarser.into_iter().enumerate() {
+            let setup = set_up(&level_problem, l)?;
+            let solved = solve_level(setup, &level_problem, &u, l, &transfers, options, builder)?;
             per_level.push((solved.newton_steps, solved.cg_iterations));
             u = solved.u;
         }
         Ok(u)
     };
-    let finest_setup = if options.threads >= 2 && finest > 0 {
+    let (u, finest_setup) = if options.threads >= 2 && finest > 0 {
         std::thread::scope(|threads| {
-            let finest_setup = threads.spawn(|| set_up(finest));
-            let coarser = solve_coarser(&mut builder);
+            let finest_setup = threads.spawn(|| set_up(problem, finest));
+            let coarser = solve_coarser(&mut builder, &mut per_level);
             let finest_setup = finest_setup
                 .join()
                 .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-            u = coarser?;
-            finest_setup
+            Ok::<_, Error>((coarser?, finest_setup?))
         })?
     } else {
-        u = solve_coarser(&mut builder)?;
-        set_up(finest)?
+        let u = solve_coarser(&mut builder, &mut per_level)?;
+        (u, set_up(problem, finest)?)
     };
     let solved = solve_level(
         finest_setup,
         problem,
         &u,
         finest,
-        levels,
+        &transfers,
         options,
         &mut builder,
     )?;
@@ -685,7 +740,7 @@ pub fn multigrid_newton(
     if solved.converged {
         builder.stop("kkt");
     }
-    let mut parameters = vec![("levels".to_string(), problems.len() as f64)];
+    let mut parameters = vec![("levels".to_string(), (finest + 1) as f64)];
     for (l, (steps, cg)) in per_level.iter().enumerate() {
         parameters.push((format!("newton_steps_level_{l}"), *steps as f64));
         parameters.push((format!("cg_iterations_level_{l}"), *cg as f64));
@@ -693,6 +748,14 @@ pub fn multigrid_newton(
     let cg_total: usize = per_level.iter().map(|p| p.1).sum();
     parameters.push(("cg_iterations".into(), cg_total as f64));
     Ok(builder.finish(solved.x, solved.lambda, parameters))
+}
+
+/// The hierarchy's prolongations and lifts (as [`MultigridLevels`]) and
+/// the finest level's index.
+struct Transfers<'a> {
+    prolongations: &'a [SparseColMat<usize, f64>],
+    lifts: &'a [Vec<f64>],
+    finest: usize,
 }
 
 /// A level made ready for Newton: its problem condensed, the V-cycle of
@@ -710,7 +773,8 @@ impl LevelSetup {
         options: &MultigridNewtonOptions,
     ) -> Result<Self> {
         let (condensed, k) = Condensed::of(problem)?;
-        let cycle = HessianCycle::new(&condensed, k, prolongations, options.cycle)?;
+        let cycle = HessianCycle::new(&condensed, &k, prolongations, options.cycle)?;
+        drop(k);
         Ok(LevelSetup {
             compliance: jacobi_dual_diagonal(problem),
             condensed,
@@ -726,7 +790,7 @@ fn solve_level(
     problem: &ContactProblem,
     coarse_u: &[f64],
     level: usize,
-    levels: &MultigridLevels,
+    transfers: &Transfers,
     options: &MultigridNewtonOptions,
     builder: &mut ReportBuilder,
 ) -> Result<LevelSolve> {
@@ -739,7 +803,7 @@ fn solve_level(
     let mut u = match level.checked_sub(1) {
         None => vec![0.0; condensed.n_skeleton()],
         Some(below) => {
-            let (p, lift) = (&levels.prolongations[below], &levels.lifts[below]);
+            let (p, lift) = (&transfers.prolongations[below], &transfers.lifts[below]);
             if p.nrows() != condensed.n_skeleton()
                 || p.ncols() != coarse_u.len()
                 || lift.len() != p.nrows()
@@ -761,7 +825,7 @@ fn solve_level(
             start
         }
     };
-    let tol = if level == levels.coarser.len() {
+    let tol = if level == transfers.finest {
         options.tol
     } else {
         options.coarse_tol.max(options.tol)
@@ -787,7 +851,7 @@ fn solve_level(
             ct_lambda,
             residual,
             gradient,
-        } = condensed.iterate(cycle.k(), &u, &clamped);
+        } = condensed.iterate(cycle.k_product(condensed, &u), &u, &clamped);
         check_finite(STAGE, newton_steps, "x", &x)?;
         let measures = kkt_measures_with(
             problem,
@@ -861,7 +925,7 @@ fn solve_level(
                 break (trial, next);
             }
             let curvature = *curvature.get_or_insert_with(|| {
-                let k_delta = mat_vec(cycle.k(), &delta);
+                let k_delta = cycle.k_product(condensed, &delta);
                 k_delta.iter().zip(&delta).map(|(a, d)| a * d).sum::<f64>()
             });
             let change = condensed.change_along(&clamped, &next, t, residual_slope, curvature);
