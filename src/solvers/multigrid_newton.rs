@@ -144,7 +144,8 @@ struct Condensed {
     beta: Vec<f64>,
     g: Vec<f64>,
     row_ptr: Vec<usize>,
-    row_cols: Vec<usize>,
+    /// Skeleton indices in 32 bits: c is the largest array a level holds.
+    row_cols: Vec<u32>,
     row_vals: Vec<f64>,
     /// Per interior unknown: its rows (compressed).
     rows_ptr: Vec<usize>,
@@ -237,6 +238,13 @@ impl Condensed {
         }
         let d: Vec<f64> = interior.iter().map(|&i| diagonal[i]).collect();
         let ns = skeleton.len();
+        if u32::try_from(ns).is_err() {
+            return Err(Error::numerical(
+                STAGE,
+                "size",
+                format!("{ns} skeleton unknowns: the condensed rows index them in 32 bits"),
+            ));
+        }
         let mut col_ptr = vec![0usize; ns + 1];
         for j in 0..n {
             for (&i, &v) in lower(j) {
@@ -320,7 +328,7 @@ impl Condensed {
             row_ptr[i + 1] += row_ptr[i];
         }
         let mut next = row_ptr.clone();
-        let mut row_cols = vec![0usize; row_ptr[m]];
+        let mut row_cols = vec![0u32; row_ptr[m]];
         let mut row_vals = vec![0.0; row_ptr[m]];
         for j in 0..n {
             if interior_of[j] != NONE {
@@ -332,7 +340,7 @@ impl Condensed {
                 .zip(&cm.val()[range])
             {
                 if v != 0.0 {
-                    row_cols[next[i]] = skeleton_of[j];
+                    row_cols[next[i]] = skeleton_of[j] as u32;
                     row_vals[next[i]] = v;
                     next[i] += 1;
                 }
@@ -376,7 +384,7 @@ impl Condensed {
     /// c_iᵀ u.
     fn row_product(&self, i: usize, u: &[f64]) -> f64 {
         (self.row_ptr[i]..self.row_ptr[i + 1])
-            .map(|k| self.row_vals[k] * u[self.row_cols[k]])
+            .map(|k| self.row_vals[k] * u[self.row_cols[k] as usize])
             .sum()
     }
 
@@ -459,7 +467,7 @@ impl Condensed {
                 ct_lambda[unknown] += self.beta[i] * lambda[i];
                 if lambda[i] != 0.0 {
                     for p in self.row_ptr[i]..self.row_ptr[i + 1] {
-                        gradient[self.row_cols[p]] -= lambda[i] * self.row_vals[p];
+                        gradient[self.row_cols[p] as usize] -= lambda[i] * self.row_vals[p];
                     }
                 }
             }
@@ -549,7 +557,7 @@ impl HessianCycle {
                 let w = condensed.d[j] / (condensed.beta[i] * condensed.beta[i]);
                 let s = w * condensed.row_product(i, u);
                 for p in condensed.row_ptr[i]..condensed.row_ptr[i + 1] {
-                    ku[condensed.row_cols[p]] -= s * condensed.row_vals[p];
+                    ku[condensed.row_cols[p] as usize] -= s * condensed.row_vals[p];
                 }
             }
         }
@@ -583,7 +591,12 @@ impl HessianCycle {
     /// Adds w r rᵀ to every level, r the restriction of c_i to it.
     fn add_term(&mut self, condensed: &Condensed, i: usize, w: f64) -> Result<()> {
         let mut r: Vec<(usize, f64)> = (condensed.row_ptr[i]..condensed.row_ptr[i + 1])
-            .map(|k| (self.position[condensed.row_cols[k]], condensed.row_vals[k]))
+            .map(|k| {
+                (
+                    self.position[condensed.row_cols[k] as usize],
+                    condensed.row_vals[k],
+                )
+            })
             .collect();
         for l in (0..self.mg.n_levels()).rev() {
             for &(a, va) in &r {
@@ -890,6 +903,9 @@ fn solve_level(
             });
         }
         monitor.stagnation(newton_steps, measures.kkt, tol)?;
+        // The whole problem's vectors served the measures: not held through
+        // the step's solve (at 2049² they are 0.4 GB).
+        drop((x, ax, cx, ct_lambda));
         old_lambda = lambda;
         cycle.follow(condensed, &clamped)?;
         let rhs: Vec<f64> = gradient.iter().map(|g| -g).collect();
