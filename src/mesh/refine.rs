@@ -175,7 +175,7 @@ impl Mesh {
             [0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1])]
         }));
         let mut boundary_edges = Vec::with_capacity(2 * self.boundary_edges.len());
-        for (be, e) in self.boundary_edges.iter().zip(self.boundary_edge_indices()) {
+        for (be, e) in (self.boundary_edges.iter()).zip(self.boundary_edge_global_indices()) {
             let [a, b] = be.vertices;
             let m = n + e;
             vertices[m] = geometry.place(be.tag, vertices[m]);
@@ -295,36 +295,6 @@ impl Mesh {
             source: self.source.clone(),
         })
     }
-
-    /// For each entry of `boundary_edges`, its global edge index: only the
-    /// edges that one triangle holds (counted) are looked up, in a map of
-    /// the boundary edges.
-    fn boundary_edge_indices(&self) -> Vec<usize> {
-        let mut sides = vec![0u8; self.n_edges()];
-        for te in &self.triangle_edges {
-            for &e in te {
-                sides[e] = sides[e].saturating_add(1);
-            }
-        }
-        let wanted: super::VertexMap<[usize; 2], usize> = self
-            .boundary_edges
-            .iter()
-            .enumerate()
-            .map(|(l, be)| {
-                let [a, b] = be.vertices;
-                ([a.min(b), a.max(b)], l)
-            })
-            .collect();
-        let mut indices = vec![0usize; self.boundary_edges.len()];
-        for (e, key) in self.edges.iter().enumerate() {
-            if sides[e] == 1 {
-                if let Some(&l) = wanted.get(key) {
-                    indices[l] = e;
-                }
-            }
-        }
-        indices
-    }
 }
 
 /// Nested meshes: `levels[0]` the coarse mesh, `levels[l + 1]` the uniform
@@ -413,6 +383,8 @@ mod tests {
             b([outer(3), outer(4)], 2),
             b([inner(0), outer(0)], 1),
             b([outer(1), outer(2)], 2),
+            // A second line element on an arc edge (another physical line).
+            b([outer(3), outer(2)], 5),
         ];
         let names = BTreeMap::from([(2, "arc".to_string()), (4, "domain".to_string())]);
         Mesh::from_parts(

@@ -29,14 +29,25 @@ impl Mesh {
         }
         sides
     }
-    /// For each entry of `boundary_edges`, its global edge index.
+    /// For each entry of `boundary_edges`, its global edge index. A line
+    /// element is an edge that one triangle holds (validated), so only
+    /// those edges are put in the map, not every edge.
     pub fn boundary_edge_global_indices(&self) -> Vec<usize> {
-        let lookup = self.edge_lookup();
+        let mut sides = vec![0u8; self.n_edges()];
+        for te in &self.triangle_edges {
+            for &e in te {
+                sides[e] = sides[e].saturating_add(1);
+            }
+        }
+        let boundary: VertexMap<[usize; 2], usize> = (self.edges.iter().enumerate())
+            .filter(|&(e, _)| sides[e] == 1)
+            .map(|(e, &key)| (key, e))
+            .collect();
         self.boundary_edges
             .iter()
             .filter_map(|be| {
                 let [a, b] = be.vertices;
-                lookup.get(&[a.min(b), a.max(b)]).copied()
+                boundary.get(&[a.min(b), a.max(b)]).copied()
             })
             .collect()
     }
@@ -58,15 +69,10 @@ impl Mesh {
     }
     /// Flags the global edges that are boundary edges with a tag in `tags` (all if None).
     pub fn boundary_edge_mask(&self, tags: Option<&[i32]>) -> Vec<bool> {
-        let lookup = self.edge_lookup();
         let mut mask = vec![false; self.n_edges()];
-        for be in self
-            .boundary_edges
-            .iter()
-            .filter(|be| tag_selected(be.tag, tags))
-        {
-            let [a, b] = be.vertices;
-            if let Some(&e) = lookup.get(&[a.min(b), a.max(b)]) {
+        let indices = self.boundary_edge_global_indices();
+        for (be, e) in self.boundary_edges.iter().zip(indices) {
+            if tag_selected(be.tag, tags) {
                 mask[e] = true;
             }
         }
