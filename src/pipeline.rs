@@ -5,6 +5,7 @@
 use crate::error::{Error, Result};
 use crate::gmsh::run_gmsh;
 use crate::guards;
+use crate::linalg::beside;
 use crate::mesh::{BoundaryGeometry, Hierarchy, Mesh};
 use crate::models::{self, ExactErrors, FigureData, ModelSystem};
 use crate::multigrid::{MultigridOptions, Smoother};
@@ -608,15 +609,14 @@ pub fn solve_on<'m>(
     // beside the finest when the scene gives the solver two threads.
     let (assembled_finest, levels) = match hierarchy {
         None => (assembled(scene, mesh), None),
-        Some(h) if scene.solver.threads >= 2 => std::thread::scope(|threads| {
-            let coarser = threads.spawn(|| multigrid_levels(scene, h));
-            let finest = assembled(scene, mesh);
-            let coarser = coarser
-                .join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        Some(h) => {
+            let (finest, coarser) = beside(
+                scene.solver.threads as usize,
+                || assembled(scene, mesh),
+                || multigrid_levels(scene, h),
+            );
             (finest, Some(coarser))
-        }),
-        Some(h) => (assembled(scene, mesh), Some(multigrid_levels(scene, h))),
+        }
     };
     let (system, problem) = assembled_finest?;
     let levels = levels.transpose()?.map(LevelsHandle::new);

@@ -18,6 +18,28 @@ pub(super) fn two_threads(threads: usize) -> bool {
     threads >= 2
 }
 
+/// `first()` here and `second()` on a second thread when `threads` allows
+/// two, else one after the other; a panic of the second thread goes on
+/// here.
+pub fn beside<A, B: Send>(
+    threads: usize,
+    first: impl FnOnce() -> A,
+    second: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    if !two_threads(threads) {
+        let a = first();
+        return (a, second());
+    }
+    std::thread::scope(|scope| {
+        let second = scope.spawn(second);
+        let a = first();
+        let b = second
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (a, b)
+    })
+}
+
 /// How a matrix given to this module is stored. Every factorisation of a
 /// symmetric kind reads the lower triangle only (`Side::Lower`), so a
 /// symmetric matrix may be given by its lower triangle alone (no stored

@@ -32,8 +32,8 @@ mod vcycle;
 
 pub use condensed::InteriorGroups;
 pub use kernels::{
-    first_non_finite, into_lower_triangle, mat_t_vec, mat_vec, norm2, norm_inf, product, residual,
-    retain_entries,
+    beside, first_non_finite, into_lower_triangle, mat_t_vec, mat_vec, norm2, norm_inf, product,
+    residual, retain_entries,
 };
 pub use linear_solver::{
     analyse, factor_once, Factors, LinearMethod, LinearOptions, LinearSolver, SolverCounts,

@@ -155,8 +155,8 @@ impl Multigrid {
                 format!("not square: {} × {}", a.nrows(), a.ncols()),
             ));
         }
-        // The coarser operators, finest first; the given one stays as it is
-        // (`matrix`) beside its copy in sweep order.
+        // The coarser operators, finest first (the Galerkin products of the
+        // given numbering; each level is then stored in its sweep order).
         let mut operators: Vec<SparseColMat<usize, f64>> = Vec::new();
         for (l, p) in prolongations.iter().enumerate().rev() {
             let fine = operators.last().unwrap_or(a);
@@ -239,8 +239,7 @@ impl Multigrid {
     /// [`Multigrid::add_to_level`] included), x and y in the given
     /// matrix's numbering.
     pub fn apply(&self, x: &[f64]) -> Vec<f64> {
-        let order = self.finest_order();
-        let x_swept: Vec<f64> = order.iter().map(|&i| x[i]).collect();
+        let x_swept = self.to_swept(x);
         let mut y_swept = vec![0.0; x.len()];
         product(
             &self.levels[self.levels.len() - 1].a,
@@ -248,10 +247,20 @@ impl Multigrid {
             &mut y_swept,
         );
         let mut y = vec![0.0; x.len()];
-        for (&i, v) in order.iter().zip(y_swept) {
-            y[i] = v;
-        }
+        self.from_swept(&y_swept, &mut y);
         y
+    }
+
+    /// v (the given matrix's numbering) in the finest level's sweep order.
+    pub fn to_swept(&self, v: &[f64]) -> Vec<f64> {
+        self.finest_order().iter().map(|&i| v[i]).collect()
+    }
+
+    /// The inverse of [`Multigrid::to_swept`]: `out` in the given numbering.
+    pub fn from_swept(&self, v_swept: &[f64], out: &mut [f64]) {
+        for (&i, &v) in self.finest_order().iter().zip(v_swept) {
+            out[i] = v;
+        }
     }
 
     /// The finest level's sweep order: `order[k]` is the given matrix's
@@ -313,14 +322,9 @@ impl Multigrid {
 
     /// One V-cycle on A x = b from the given x.
     pub fn cycle(&self, b: &[f64], x: &mut [f64]) {
-        let finest = self.levels.len() - 1;
-        let order = &self.levels[finest].order;
-        let b_swept: Vec<f64> = order.iter().map(|&i| b[i]).collect();
-        let mut x_swept: Vec<f64> = order.iter().map(|&i| x[i]).collect();
-        self.cycle_at(finest, &b_swept, &mut x_swept);
-        for (&i, v) in order.iter().zip(x_swept) {
-            x[i] = v;
-        }
+        let (b_swept, mut x_swept) = (self.to_swept(b), self.to_swept(x));
+        self.cycle_at(self.levels.len() - 1, &b_swept, &mut x_swept);
+        self.from_swept(&x_swept, x);
     }
 
     /// z = one V-cycle on A z = r from z = 0: the preconditioner.
@@ -332,9 +336,8 @@ impl Multigrid {
     /// V-cycles from x until ‖b − A x‖₂ ≤ `rtol` ‖b‖₂ or `max_cycles`.
     pub fn solve(&self, b: &[f64], x: &mut [f64], rtol: f64, max_cycles: usize) -> CycleReport {
         let finest = self.levels.len() - 1;
-        let (a, order) = (&self.levels[finest].a, &self.levels[finest].order);
-        let b_swept: Vec<f64> = order.iter().map(|&i| b[i]).collect();
-        let mut x_swept: Vec<f64> = order.iter().map(|&i| x[i]).collect();
+        let a = &self.levels[finest].a;
+        let (b_swept, mut x_swept) = (self.to_swept(b), self.to_swept(x));
         let norm_b = norm2(b);
         let mut r = vec![0.0; b.len()];
         let mut relative = |x: &[f64]| {
@@ -351,9 +354,7 @@ impl Multigrid {
             cycles += 1;
             residuals.push(relative(&x_swept));
         }
-        for (&i, v) in order.iter().zip(x_swept) {
-            x[i] = v;
-        }
+        self.from_swept(&x_swept, x);
         CycleReport {
             converged: residuals[cycles] <= rtol,
             cycles,

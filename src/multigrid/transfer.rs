@@ -20,7 +20,7 @@
 //! the Galerkin identity holds on the free unknowns.
 
 use crate::assembly::{
-    assemble_bilinear, assemble_linear, eliminate, laplace, DofNumbering, Triplets,
+    assemble_bilinear_eliminated, assemble_linear, laplace, DofNumbering, Triplets,
 };
 use crate::error::{Error, Result};
 use crate::mesh::{Hierarchy, Mesh};
@@ -142,11 +142,8 @@ impl P1Levels {
 pub fn p1_stiffness(mesh: &Mesh, numbering: &DofNumbering) -> SparseColMat<usize, f64> {
     let space = Space::new(mesh, Element::P1);
     let rule = TriangleRule::exact_for(2);
-    let full = assemble_bilinear(&space, &space, &rule, laplace);
     let fixed = vec![0.0; numbering.n_total()];
-    eliminate(full, numbering, numbering, &fixed)
-        .0
-        .into_sparse()
+    assemble_bilinear_eliminated(&space, &space, &rule, laplace, numbering, numbering, &fixed).0
 }
 
 /// The P1 load vector ∫ f v of a constant f on the free vertices.

@@ -48,7 +48,7 @@ use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, P
 use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{mat_vec, MatrixKind};
+use crate::linalg::{beside, mat_vec, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::{Arc, Mutex};
@@ -388,6 +388,12 @@ impl Condensed {
             .sum()
     }
 
+    /// w_i = d/β_i² of row i's term w_i c_i c_iᵀ in the Hessian, j its
+    /// interior unknown.
+    fn term_weight(&self, j: usize, i: usize) -> f64 {
+        self.d[j] / (self.beta[i] * self.beta[i])
+    }
+
     /// Each interior unknown clamped between the bounds u gives it.
     fn clamp(&self, u: &[f64]) -> Clamped {
         let s: Vec<f64> = (0..self.g.len()).map(|i| self.row_product(i, u)).collect();
@@ -554,8 +560,7 @@ impl HessianCycle {
         let mut ku = self.mg.apply(u);
         for (j, &i) in self.applied.iter().enumerate() {
             if i != NONE {
-                let w = condensed.d[j] / (condensed.beta[i] * condensed.beta[i]);
-                let s = w * condensed.row_product(i, u);
+                let s = condensed.term_weight(j, i) * condensed.row_product(i, u);
                 for p in condensed.row_ptr[i]..condensed.row_ptr[i + 1] {
                     ku[condensed.row_cols[p] as usize] -= s * condensed.row_vals[p];
                 }
@@ -575,9 +580,7 @@ impl HessianCycle {
             changed = true;
             for (row, sign) in [(old, -1.0), (new, 1.0)] {
                 if row != NONE {
-                    let weight =
-                        sign * condensed.d[j] / (condensed.beta[row] * condensed.beta[row]);
-                    self.add_term(condensed, row, weight)?;
+                    self.add_term(condensed, row, sign * condensed.term_weight(j, row))?;
                 }
             }
             self.applied[j] = new;
@@ -634,14 +637,11 @@ impl HessianCycle {
 
     /// H δ = rhs by CG with the V-cycle; δ and rhs in skeleton numbering.
     fn solve(&self, rhs: &[f64], rtol: f64, max_cg: usize) -> (Vec<f64>, usize) {
-        let order = self.mg.finest_order();
-        let b: Vec<f64> = order.iter().map(|&i| rhs[i]).collect();
+        let b = self.mg.to_swept(rhs);
         let mut x = vec![0.0; b.len()];
         let report = self.mg.pcg_swept(&b, &mut x, rtol, max_cg);
         let mut delta = vec![0.0; b.len()];
-        for (&i, v) in order.iter().zip(x) {
-            delta[i] = v;
-        }
+        self.mg.from_swept(&x, &mut delta);
         (delta, report.iterations)
     }
 }
@@ -725,19 +725,12 @@ pub fn multigrid_newton(
         }
         Ok(u)
     };
-    let (u, finest_setup) = if options.threads >= 2 && finest > 0 {
-        std::thread::scope(|threads| {
-            let finest_setup = threads.spawn(|| set_up(problem, finest));
-            let coarser = solve_coarser(&mut builder, &mut per_level);
-            let finest_setup = finest_setup
-                .join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-            Ok::<_, Error>((coarser?, finest_setup?))
-        })?
-    } else {
-        let u = solve_coarser(&mut builder, &mut per_level)?;
-        (u, set_up(problem, finest)?)
-    };
+    let (u, finest_setup) = beside(
+        options.threads,
+        || solve_coarser(&mut builder, &mut per_level),
+        || set_up(problem, finest),
+    );
+    let (u, finest_setup) = (u?, finest_setup?);
     let solved = solve_level(
         finest_setup,
         problem,
