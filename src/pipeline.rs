@@ -655,6 +655,7 @@ fn multigrid_levels(scene: &Scene, hierarchy: &Hierarchy) -> Result<MultigridLev
         coarser,
         prolongations: transfers.prolongations,
         lifts: transfers.lifts,
+        obstacles: transfers.obstacles,
     })
 }
 

@@ -24,6 +24,7 @@ use crate::multigrid::P1Levels;
 use crate::output::{AttrValue, ResultData};
 use crate::quadrature::TriangleRule;
 use crate::scene::{ColdStartSpec, ElementPair, Expression, ObstacleSpec, Scene};
+use crate::solvers::multigrid_newton::SkeletonObstacles;
 use crate::solvers::{Constraint, ContactProblem, SolveReport};
 use crate::space::{Element, Space, TriangleGeometry};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
@@ -109,9 +110,33 @@ impl ModelKind for Membrane {
             Some(g_d) => levels.lifts(hierarchy, |x| g_d.eval(x)),
             None => levels.lifts(hierarchy, |_| 0.0),
         };
+        // The obstacles at the finest level's vertices, each level's free
+        // ones read from them: a coarse vertex keeps its index and place.
+        let finest = hierarchy.finest();
+        let at_free_vertices = |values: &[f64]| -> Vec<Vec<f64>> {
+            (levels.numberings.iter())
+                .map(|n| n.free_dofs.iter().map(|&v| values[v]).collect())
+                .collect()
+        };
+        let obstacles = scene.obstacle.as_ref().map(|obstacle| {
+            let at_vertices = |f: &dyn Fn([f64; 2]) -> f64| {
+                at_free_vertices(&finest.vertices.iter().map(|&x| f(x)).collect::<Vec<_>>())
+            };
+            let lower = at_vertices(&|x| obstacle.value(x));
+            let mut upper =
+                (obstacle.upper.as_ref()).map(|e| at_vertices(&|x| e.eval(x)).into_iter());
+            lower
+                .into_iter()
+                .map(|lower| SkeletonObstacles {
+                    lower,
+                    upper: upper.as_mut().and_then(Iterator::next),
+                })
+                .collect()
+        });
         Ok(SkeletonTransfers {
             prolongations: levels.prolongations,
             lifts,
+            obstacles,
         })
     }
 }

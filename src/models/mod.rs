@@ -13,6 +13,7 @@ use crate::mesh::{Hierarchy, Mesh};
 use crate::output::{AttrValue, Field, Location, ResultData};
 use crate::plot;
 use crate::scene::{ColdStartSpec, ElementPair, Model, PlotKind, Scene};
+use crate::solvers::multigrid_newton::SkeletonObstacles;
 use crate::solvers::Probe;
 use crate::solvers::{ContactProblem, SolveReport};
 use crate::space::Element;
@@ -56,8 +57,8 @@ pub trait ModelKind {
     /// The prolongations between consecutive levels of `hierarchy` on the
     /// unknowns a multigrid smooths (the skeleton: the problem's unknowns
     /// outside its interior groups), coarsest first, with what the boundary
-    /// values add to each; an error naming the scene key where the model
-    /// has none.
+    /// values add to each and each level's obstacles there; an error naming
+    /// the scene key where the model has none.
     fn skeleton_transfers(
         &self,
         _hierarchy: &Hierarchy,
@@ -79,6 +80,9 @@ pub trait ModelKind {
 pub struct SkeletonTransfers {
     pub prolongations: Vec<SparseColMat<usize, f64>>,
     pub lifts: Vec<Vec<f64>>,
+    /// `obstacles[l]`: the obstacles at level l's skeleton unknowns, every
+    /// level (the finest last); none without an obstacle.
+    pub obstacles: Option<Vec<SkeletonObstacles>>,
 }
 
 /// The FreeFEM twins of the models (freefem/*.edp; src/freefem.rs runs them).

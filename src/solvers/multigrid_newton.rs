@@ -42,7 +42,12 @@
 //! **Grid sequencing.** The levels' own problems (each assembled on its mesh
 //! of the hierarchy) are solved from the coarsest, each from the
 //! prolongation of the previous level's u, the coarser ones to
-//! `coarse_tol`, the given problem to `tol`.
+//! `coarse_tol`, the given problem to `tol`. Where the previous level's u
+//! touches an obstacle, the start follows the finer level's obstacle
+//! instead of the interpolant of the coarser one (given the obstacles at
+//! each level's skeleton, [`SkeletonObstacles`]): the interpolant misses a
+//! curved obstacle by O(H²), and the contact set's rows would answer that
+//! gap with multipliers of order gap/h².
 
 use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, Products};
 use super::monitor::{check_finite, Monitor};
@@ -69,6 +74,20 @@ pub struct MultigridLevels {
     /// `lifts[l]`: what the boundary values add to `prolongations[l] u` (the
     /// start of level l + 1 is the interpolant of level l's whole solution).
     pub lifts: Vec<Vec<f64>>,
+    /// `obstacles[l]`: level l's obstacles at its skeleton unknowns, every
+    /// level (the finest last), or none: then each level starts from the
+    /// interpolant alone.
+    pub obstacles: Option<Vec<SkeletonObstacles>>,
+}
+
+/// A level's obstacles at its skeleton unknowns: the values whose
+/// interpolant the constraint rows integrate (for P1⊕B3–P0 the P1
+/// interpolants at the free vertices). The start of each level follows
+/// them where the level below touches (module docs, "Grid sequencing").
+#[derive(Debug, Clone)]
+pub struct SkeletonObstacles {
+    pub lower: Vec<f64>,
+    pub upper: Option<Vec<f64>>,
 }
 
 /// The coarser levels handed to one solve, which takes them: each coarser
@@ -679,13 +698,18 @@ pub fn multigrid_newton(
         coarser,
         prolongations,
         lifts,
+        obstacles,
     } = levels;
-    if prolongations.len() != coarser.len() || lifts.len() != coarser.len() {
+    let n_obstacles = obstacles.as_ref().map_or(coarser.len() + 1, Vec::len);
+    if prolongations.len() != coarser.len()
+        || lifts.len() != coarser.len()
+        || n_obstacles != coarser.len() + 1
+    {
         return Err(Error::numerical(
             STAGE,
             "levels",
             format!(
-                "{} coarser problems but {} prolongations and {} lifts",
+                "{} coarser problems but {} prolongations, {} lifts and the obstacles of {n_obstacles} levels",
                 coarser.len(),
                 prolongations.len(),
                 lifts.len()
@@ -696,6 +720,7 @@ pub fn multigrid_newton(
     let transfers = Transfers {
         prolongations: &prolongations,
         lifts: &lifts,
+        obstacles: obstacles.as_deref(),
         finest,
     };
     let mut builder = ReportBuilder::new("multigrid", clock, 0.0, 0.0)
@@ -756,12 +781,79 @@ pub fn multigrid_newton(
     Ok(builder.finish(solved.x, solved.lambda, parameters))
 }
 
-/// The hierarchy's prolongations and lifts (as [`MultigridLevels`]) and
-/// the finest level's index.
+/// The hierarchy's prolongations, lifts and obstacles (as
+/// [`MultigridLevels`]) and the finest level's index.
 struct Transfers<'a> {
     prolongations: &'a [SparseColMat<usize, f64>],
     lifts: &'a [Vec<f64>],
+    obstacles: Option<&'a [SkeletonObstacles]>,
     finest: usize,
+}
+
+impl Transfers<'_> {
+    /// The start of level `level` above the coarsest: the interpolant of
+    /// the level below's skeleton solution `coarse_u`, P u + lift, kept on
+    /// the fine obstacles' side where `coarse_u` touches its own. There the
+    /// interpolant follows the coarse obstacle's, which misses the fine
+    /// obstacle by O(H²) (its curvature times the coarse mesh size
+    /// squared): the fine rows would see that gap, the bubbles fill it at
+    /// λ ~ gap/h², and Newton's first steps would go to taking it back
+    /// (half the contact set leaving, then returning). So each unknown is
+    /// kept at or above φ_h + P min(0, u − φ_H), the fine obstacle less the
+    /// interpolated penetration of the coarse solution (strictly inside
+    /// the contact set, as the solution is); the upper obstacle mirrored.
+    /// Away from contact the interpolant is above that bound and stays.
+    /// The fixed unknowns are not in P: their distance counts as 0 (the
+    /// boundary values lie between the obstacles).
+    fn start(&self, level: usize, coarse_u: &[f64], n_skeleton: usize) -> Result<Vec<f64>> {
+        let below = level - 1;
+        let (p, lift) = (&self.prolongations[below], &self.lifts[below]);
+        let obstacles = self.obstacles.map(|o| (&o[below], &o[level]));
+        let obstacle_sizes = obstacles.map_or((coarse_u.len(), n_skeleton), |(coarse, fine)| {
+            (coarse.lower.len(), fine.lower.len())
+        });
+        if p.nrows() != n_skeleton
+            || p.ncols() != coarse_u.len()
+            || lift.len() != p.nrows()
+            || obstacle_sizes != (coarse_u.len(), n_skeleton)
+        {
+            return Err(Error::numerical(
+                STAGE,
+                "prolongation",
+                format!(
+                    "prolongation {below} is {} × {} with a lift of {} and obstacles at {} and {} unknowns; the levels have {} and {n_skeleton} skeleton unknowns",
+                    p.nrows(),
+                    p.ncols(),
+                    lift.len(),
+                    obstacle_sizes.0,
+                    obstacle_sizes.1,
+                    coarse_u.len(),
+                ),
+            ));
+        }
+        let mut start = mat_vec(p, coarse_u);
+        start.iter_mut().zip(lift).for_each(|(s, l)| *s += l);
+        let Some((coarse, fine)) = obstacles else {
+            return Ok(start);
+        };
+        // σ = 1: u ≥ φ; σ = −1: u ≤ ψ.
+        let mut follow = |coarse: &[f64], fine: &[f64], sigma: f64| {
+            let penetration: Vec<f64> = (coarse_u.iter().zip(coarse))
+                .map(|(u, b)| sigma * (sigma * (u - b)).min(0.0))
+                .collect();
+            let shift = mat_vec(p, &penetration);
+            for ((s, b), d) in start.iter_mut().zip(fine).zip(&shift) {
+                if sigma * (b + d - *s) > 0.0 {
+                    *s = b + d;
+                }
+            }
+        };
+        follow(&coarse.lower, &fine.lower, 1.0);
+        if let (Some(coarse), Some(fine)) = (&coarse.upper, &fine.upper) {
+            follow(coarse, fine, -1.0);
+        }
+        Ok(start)
+    }
 }
 
 /// A level made ready for Newton: its problem condensed, the V-cycle of
@@ -806,30 +898,9 @@ fn solve_level(
         compliance,
     } = setup;
     let condensed = &condensed;
-    let mut u = match level.checked_sub(1) {
-        None => vec![0.0; condensed.n_skeleton()],
-        Some(below) => {
-            let (p, lift) = (&transfers.prolongations[below], &transfers.lifts[below]);
-            if p.nrows() != condensed.n_skeleton()
-                || p.ncols() != coarse_u.len()
-                || lift.len() != p.nrows()
-            {
-                return Err(Error::numerical(
-                    STAGE,
-                    "prolongation",
-                    format!(
-                        "prolongation {below} is {} × {}, the levels have {} and {} skeleton unknowns",
-                        p.nrows(),
-                        p.ncols(),
-                        coarse_u.len(),
-                        condensed.n_skeleton()
-                    ),
-                ));
-            }
-            let mut start = mat_vec(p, coarse_u);
-            start.iter_mut().zip(lift).for_each(|(s, l)| *s += l);
-            start
-        }
+    let mut u = match level {
+        0 => vec![0.0; condensed.n_skeleton()],
+        _ => transfers.start(level, coarse_u, condensed.n_skeleton())?,
     };
     let tol = if level == transfers.finest {
         options.tol
