@@ -28,17 +28,22 @@ pub fn pcg(
     let n = b.len();
     let norm_b = norm2(b);
     let target = rtol * norm_b;
-    let mut r = vec![0.0; n];
+    // From x = 0 (a Newton step's solve) the residual is b: no product.
+    let mut r = match x.iter().all(|&v| v == 0.0) {
+        true => b.to_vec(),
+        false => {
+            let mut r = vec![0.0; n];
+            residual(a, b, x, &mut r);
+            r
+        }
+    };
     let mut z = vec![0.0; n];
     let mut q = vec![0.0; n];
     let mut iterations = 0;
     // The recurrence's residual drifts from b − A x near round-off: CG
-    // restarts from x until the true residual meets the target.
-    while norm_b > 0.0 && iterations < max_iter {
-        residual(a, b, x, &mut r);
-        if norm2(&r) <= target {
-            break;
-        }
+    // restarts from x until the true residual, computed afresh after each
+    // run of iterations, meets the target (that one is the report's).
+    while norm_b > 0.0 && iterations < max_iter && norm2(&r) > target {
         precondition(&r, &mut z);
         let mut p = z.clone();
         let mut rz = dot(&r, &z);
@@ -65,8 +70,8 @@ pub fn pcg(
                 p[i] = z[i] + beta * p[i];
             }
         }
+        residual(a, b, x, &mut r);
     }
-    residual(a, b, x, &mut r);
     let relative_residual = match norm_b {
         0.0 => norm2(&r),
         _ => norm2(&r) / norm_b,
