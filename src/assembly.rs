@@ -555,6 +555,87 @@ pub fn assemble_bilinear_eliminated(
     (matrix.into_sparse(), shift)
 }
 
+/// ∫_T φ_k / |T| for each local basis function k of `element`, the same on
+/// every straight triangle (the basis is a polynomial in the barycentric
+/// coordinates): the reference element's means, from a rule exact for
+/// its degree.
+fn basis_means(element: Element) -> [f64; MAX_LOCAL] {
+    let rule = TriangleRule::exact_for(element.degree());
+    let mut means = [0.0; MAX_LOCAL];
+    for (&point, &w) in rule.points.iter().zip(&rule.weights) {
+        let basis = element.basis(point);
+        for (m, v) in means.iter_mut().zip(&basis.values[..element.n_local()]) {
+            *m += w * v;
+        }
+    }
+    means
+}
+
+/// c ∫ φ_i for every dof i of `space`: the load of a constant source, each
+/// triangle's share |T| times the basis means ([`basis_means`]), where
+/// quadrature gives the same numbers to round-off.
+pub fn assemble_constant_linear(space: &Space, c: f64) -> Vec<f64> {
+    let means = basis_means(space.element);
+    let n = space.element.n_local();
+    let mut out = vec![0.0; space.n_dofs()];
+    for t in 0..space.mesh.n_triangles() {
+        let area = space.mesh.area(t);
+        let (dofs, _) = space.element_dofs(t);
+        for (&d, m) in dofs[..n].iter().zip(&means) {
+            out[d] += c * area * m;
+        }
+    }
+    out
+}
+
+/// The P0–`trial` mass matrix M_Tj = ∫_T φ_j with every triangle's row
+/// (P0's dofs, all free) and the free trial dofs of `cols` as columns, and
+/// −M_fixed u_fixed per row: a P0 multiplier's constraint rows. Each row is
+/// |T| times the basis means ([`basis_means`]), written straight into
+/// compressed columns: a column's rows are the triangles around its dof, in
+/// order. [`assemble_bilinear_eliminated`] of the mass form gives the same
+/// matrix to round-off, at 7 quadrature points per triangle.
+pub fn assemble_p0_mass(
+    trial: &Space,
+    cols: &DofNumbering,
+    fixed_values: &[f64],
+) -> (SparseColMat<usize, f64>, Vec<f64>) {
+    let mesh = trial.mesh;
+    let (means, n) = (basis_means(trial.element), trial.element.n_local());
+    let m = mesh.n_triangles();
+    let mut col_ptr = vec![0usize; cols.n_free() + 1];
+    for t in 0..m {
+        let (dofs, _) = trial.element_dofs(t);
+        for &d in &dofs[..n] {
+            if let Some(c) = cols.free_index[d] {
+                col_ptr[c + 1] += 1;
+            }
+        }
+    }
+    for c in 0..cols.n_free() {
+        col_ptr[c + 1] += col_ptr[c];
+    }
+    let mut next = col_ptr[..cols.n_free()].to_vec();
+    let mut rows = vec![0usize; col_ptr[cols.n_free()]];
+    let mut values = vec![0.0; rows.len()];
+    let mut shift = vec![0.0; m];
+    for t in 0..m {
+        let area = mesh.area(t);
+        let (dofs, _) = trial.element_dofs(t);
+        for (&d, mean) in dofs[..n].iter().zip(&means) {
+            match cols.free_index[d] {
+                Some(c) => {
+                    (rows[next[c]], values[next[c]]) = (t, area * mean);
+                    next[c] += 1;
+                }
+                None => shift[t] -= area * mean * fixed_values[d],
+            }
+        }
+    }
+    let symbolic = SymbolicSparseColMat::new_checked(m, cols.n_free(), col_ptr, None, rows);
+    (SparseColMat::new(symbolic, values), shift)
+}
+
 /// Each triangle's element matrix of ∫ form(u, v, x), handed to `sink`
 /// with the triangle's test (row) and trial (column) dofs.
 fn element_matrices(

@@ -1,5 +1,6 @@
-//! Assembly's sparse compression (`Triplets::into_sparse`) and element-by-element
-//! assembly into compressed columns (`ElementMatrix`), property-tested.
+//! Assembly: sparse compression (`Triplets::into_sparse`) and element-by-element
+//! assembly into compressed columns (`ElementMatrix`), property-tested; the P0
+//! rows and constant loads from basis means against quadrature.
 
 use proptest::prelude::*;
 
@@ -94,5 +95,75 @@ proptest! {
         prop_assert_eq!(a.symbolic().row_idx(), b.symbolic().row_idx());
         // Small integers: every order of summation is exact.
         prop_assert_eq!(a.val(), b.val());
+    }
+}
+
+mod common;
+
+/// The P0 constraint rows and a constant load from the basis means equal
+/// quadrature's on every element, with boundary dofs eliminated and their
+/// values shifted to the right: to round-off (1e-14 of the row's size).
+#[test]
+fn p0_mass_and_constant_load_from_basis_means_equal_quadrature() {
+    use obstacle_fem::assembly::{
+        assemble_bilinear_eliminated, assemble_constant_linear, assemble_linear, assemble_p0_mass,
+        mass, DofNumbering,
+    };
+    use obstacle_fem::quadrature::TriangleRule;
+    use obstacle_fem::space::{Element, Space};
+    let mut mesh = common::square_mesh(6);
+    // Triangles of different shapes and sizes: interior vertices moved.
+    for (k, v) in mesh.vertices.iter_mut().enumerate() {
+        if v[0].abs() < 1.0 && v[1].abs() < 1.0 {
+            v[0] += 0.05 * ((k * 7 % 5) as f64 - 2.0) / 2.0;
+            v[1] += 0.05 * ((k * 3 % 5) as f64 - 2.0) / 2.0;
+        }
+    }
+    let p0 = Space::new(&mesh, Element::P0);
+    let rule = TriangleRule::exact_for(6);
+    for element in [
+        Element::P1,
+        Element::P1Bubble,
+        Element::P2,
+        Element::P2Bubble,
+    ] {
+        let u = Space::new(&mesh, element);
+        let numbering = DofNumbering::from_fixed_mask(&u.boundary_dof_mask(None));
+        let fixed: Vec<f64> = (0..u.n_dofs()).map(|d| 1.0 + (d % 7) as f64).collect();
+        let (c, shift) = assemble_p0_mass(&u, &numbering, &fixed);
+        let (q, q_shift) = assemble_bilinear_eliminated(
+            &p0,
+            &u,
+            &rule,
+            mass,
+            &DofNumbering::all_free(p0.n_dofs()),
+            &numbering,
+            &fixed,
+        );
+        assert_eq!(
+            c.symbolic().col_ptr(),
+            q.symbolic().col_ptr(),
+            "{element:?}"
+        );
+        assert_eq!(
+            c.symbolic().row_idx(),
+            q.symbolic().row_idx(),
+            "{element:?}"
+        );
+        let load = assemble_constant_linear(&u, 2.5);
+        let quadrature = assemble_linear(&u, &rule, |v, _| 2.5 * v.value);
+        for (what, ours, theirs) in [
+            ("C", c.val(), q.val()),
+            ("the boundary values' shift", &shift[..], &q_shift[..]),
+            ("the load", &load[..], &quadrature[..]),
+        ] {
+            let scale = theirs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in ours.iter().zip(theirs) {
+                assert!(
+                    (a - b).abs() <= 1e-14 * scale,
+                    "{element:?}, {what}: {a:e} against {b:e}"
+                );
+            }
+        }
     }
 }

@@ -13,8 +13,9 @@ use super::{
     SkeletonTransfers,
 };
 use crate::assembly::{
-    assemble_bilinear_eliminated, assemble_linear, element_diagonal, integrate_fields, laplace,
-    lumped_mass, mass, quadrature_points, DofNumbering, QuadPoint, ShapeValue,
+    assemble_bilinear_eliminated, assemble_constant_linear, assemble_linear, assemble_p0_mass,
+    element_diagonal, integrate_fields, laplace, lumped_mass, mass, quadrature_points,
+    DofNumbering, QuadPoint, ShapeValue,
 };
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionSet, SetEvaluator};
@@ -672,7 +673,7 @@ impl ModelSystem for MembraneSystem<'_> {
             ),
         };
         let f_full = match g.as_constant() {
-            Some(g) => assemble_linear(u, &rule, |v, _| g * v.value),
+            Some(g) => assemble_constant_linear(u, g),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
         };
         let rhs: Vec<f64> = numbering
@@ -685,16 +686,18 @@ impl ModelSystem for MembraneSystem<'_> {
             None => None,
             Some(obstacle) => {
                 let lam = &self.lambda_space;
-                let all_rows = DofNumbering::all_free(lam.n_dofs());
-                let (mut c, c_shift) = assemble_bilinear_eliminated(
-                    lam,
-                    u,
-                    &rule,
-                    mass,
-                    &all_rows,
-                    numbering,
-                    fixed_values,
-                );
+                let (mut c, c_shift) = match lam.element {
+                    Element::P0 => assemble_p0_mass(u, numbering, fixed_values),
+                    _ => assemble_bilinear_eliminated(
+                        lam,
+                        u,
+                        &rule,
+                        mass,
+                        &DofNumbering::all_free(lam.n_dofs()),
+                        numbering,
+                        fixed_values,
+                    ),
+                };
                 let phi = self.phi.as_ref().expect("set up with the obstacle");
                 let (mut g_vec, mut weights) =
                     self.obstacle_rows(phi, |x| obstacle.value(x), &rule);
