@@ -45,7 +45,7 @@ pub use numeric::{
 };
 pub use pcg::{pcg, CgReport};
 pub use solve::refine;
-pub use vcycle::{CycleReport, Multigrid, MultigridOptions, Smoother, SweepOrder};
+pub use vcycle::{CycleReport, Multigrid, MultigridOptions, Smoother, SweepOrder, SweptLevel};
 
 // What the modules read of each other through this one.
 use analysis::OrderedEntries;

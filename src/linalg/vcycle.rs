@@ -80,6 +80,32 @@ pub enum SweepOrder {
     CuthillMcKee,
 }
 
+/// One level's operator made ready to join a hierarchy ([`Multigrid::stacked`]):
+/// stored in its sweep order, its diagonal checked positive. Building it
+/// (the ordering and the renumbering) is most of a level's set-up and needs
+/// no other level.
+pub struct SweptLevel(Level);
+
+impl SweptLevel {
+    /// Level `l`'s operator `a` (symmetric, stored whole), in the order of
+    /// `order`; an error naming the level where a diagonal entry is not
+    /// positive.
+    pub fn new(l: usize, a: &SparseColMat<usize, f64>, order: SweepOrder) -> Result<Self> {
+        let diagonal = positive_diagonal(l, a)?;
+        let order = match order {
+            SweepOrder::Numbered => (0..a.nrows()).collect(),
+            SweepOrder::CuthillMcKee => cuthill_mckee(a),
+        };
+        // Stored in sweep order: the sweeps then read x and A front by
+        // front, not scattered over the hierarchy's numbering (twice as
+        // fast a V-cycle at 1025²).
+        let position = inverse(&order);
+        let a = renumbered(a, &position, &position);
+        let diagonal = order.iter().map(|&i| diagonal[i]).collect();
+        Ok(SweptLevel(Level { a, diagonal, order }))
+    }
+}
+
 /// One level's operator and its diagonal, numbered in the level's sweep
 /// order (Gauss–Seidel visits 0, 1, …, n − 1: the sweep reads x and the
 /// matrix in storage order), and `order[k]`, the level's own number of
@@ -183,40 +209,56 @@ impl Multigrid {
             operators.push(coarse);
         }
         operators.reverse();
-        let levels = operators
+        let mut levels = operators
             .iter()
             .chain([a])
             .enumerate()
-            .map(|(l, a)| {
-                let diagonal = positive_diagonal(l, a)?;
-                let order = match options.order {
-                    SweepOrder::Numbered => (0..a.nrows()).collect(),
-                    SweepOrder::CuthillMcKee => cuthill_mckee(a),
-                };
-                // Stored in sweep order: the sweeps then read x and A front
-                // by front, not scattered over the hierarchy's numbering
-                // (twice as fast a V-cycle at 1025²).
-                let position = inverse(&order);
-                let a = renumbered(a, &position, &position);
-                let diagonal = order.iter().map(|&i| diagonal[i]).collect();
-                Ok(Level { a, diagonal, order })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let prolongations = prolongations
-            .iter()
-            .enumerate()
-            .map(|(l, p)| {
-                let (coarse, fine) = (&levels[l].order, &levels[l + 1].order);
-                renumbered(p, &inverse(fine), &inverse(coarse))
-            })
-            .collect();
-        let coarsest = factor_coarsest(&levels[0].a, &options)?;
+            .map(|(l, a)| SweptLevel::new(l, a, options.order));
+        let coarsest = levels.next().expect("the given level")?;
+        let mut mg = Multigrid::on_coarsest(coarsest, options)?;
+        for (level, p) in levels.zip(prolongations) {
+            mg = mg.stacked(level?, p)?;
+        }
+        Ok(mg)
+    }
+
+    /// The hierarchy of one level, its operator factorised.
+    pub fn on_coarsest(level: SweptLevel, options: MultigridOptions) -> Result<Self> {
+        let coarsest = factor_coarsest(&level.0.a, &options)?;
         Ok(Multigrid {
-            levels,
-            prolongations,
+            levels: vec![level.0],
+            prolongations: Vec::new(),
             coarsest,
             options,
         })
+    }
+
+    /// This hierarchy with `finest` on top, `p` the prolongation from the
+    /// present finest level to it (both levels in their given numbering).
+    /// The coarser operators stay as they are: [`Multigrid::new`] makes
+    /// them the Galerkin products; a caller stacking its own levels answers
+    /// for them being those or near (for nested P1 spaces the Galerkin
+    /// product of the finer stiffness is the coarser mesh's own).
+    pub fn stacked(mut self, finest: SweptLevel, p: &SparseColMat<usize, f64>) -> Result<Self> {
+        let (fine, coarse) = (&finest.0.order, self.finest_order());
+        if p.nrows() != fine.len() || p.ncols() != coarse.len() {
+            return Err(Error::numerical(
+                STAGE,
+                "prolongation",
+                format!(
+                    "prolongation {} is {} × {}, its levels have {} and {} unknowns",
+                    self.levels.len() - 1,
+                    p.nrows(),
+                    p.ncols(),
+                    coarse.len(),
+                    fine.len()
+                ),
+            ));
+        }
+        self.prolongations
+            .push(renumbered(p, &inverse(fine), &inverse(coarse)));
+        self.levels.push(finest.0);
+        Ok(self)
     }
 
     pub fn n_levels(&self) -> usize {

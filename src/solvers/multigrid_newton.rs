@@ -30,8 +30,10 @@
 //! solution). Each step's
 //! H δ = −∇J is solved by conjugate gradients preconditioned by one
 //! V-cycle (`multigrid::Multigrid`) whose level operators are the Galerkin
-//! operators of H: K's, set up once per level, plus each active row's
-//! rank-one term restricted through the prolongations. On nested P1 meshes
+//! operators of H: each coarser level's own K (for P1 on nested meshes the
+//! Galerkin product of the finer K: each level's cycle is the one below it
+//! with the level's K stacked on top, no products formed), plus each active
+//! row's rank-one term restricted through the prolongations. On nested P1 meshes
 //! the restriction of c_i stays on the vertices of the triangle's ancestor,
 //! inside K's pattern at every level; a step adds or removes the terms of
 //! the rows whose activity changed only. CG stops at the relative residual
@@ -54,7 +56,7 @@ use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{beside, mat_vec, MatrixKind};
-use crate::linalg::{Multigrid, MultigridOptions};
+use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -542,34 +544,52 @@ struct HessianCycle {
 }
 
 impl HessianCycle {
-    /// The hierarchy of K, which holds K in sweep order only: products
-    /// with K are [`HessianCycle::k_product`].
-    fn new(
+    /// The cycle of a level whose K is `level`: alone on the coarsest
+    /// level, else on top of the level below's cycle (`below`, its terms
+    /// taken off, and the prolongation to this level). The coarser
+    /// operators are then the coarser levels' own K, which for nested P1
+    /// meshes are the Galerkin products of this one (no products to form;
+    /// the snapped circle of a disk makes them near). The hierarchy holds
+    /// K in sweep order only: products with K are [`HessianCycle::k_product`].
+    fn on(
         condensed: &Condensed,
-        k: &SparseColMat<usize, f64>,
-        prolongations: &[SparseColMat<usize, f64>],
+        level: SweptLevel,
+        below: Option<(HessianCycle, &SparseColMat<usize, f64>)>,
         options: MultigridOptions,
     ) -> Result<Self> {
-        let mg = Multigrid::new(k, prolongations, options)?;
-        let mut position = vec![0; condensed.n_skeleton()];
-        for (k, &i) in mg.finest_order().iter().enumerate() {
-            position[i] = k;
-        }
-        let restrictions = (0..prolongations.len())
-            .map(|l| {
+        let (mg, mut restrictions) = match below {
+            None => (Multigrid::on_coarsest(level, options)?, Vec::new()),
+            Some((below, p)) => {
+                debug_assert!(below.applied.iter().all(|&i| i == NONE), "terms taken off");
+                (below.mg.stacked(level, p)?, below.restrictions)
+            }
+        };
+        if let Some(l) = mg.n_levels().checked_sub(2) {
+            restrictions.push(
                 mg.prolongation_swept(l)
                     .as_ref()
                     .transpose()
                     .to_col_major()
-                    .map_err(|e| Error::numerical(STAGE, "restriction", format!("{e:?}")))
-            })
-            .collect::<Result<_>>()?;
+                    .map_err(|e| Error::numerical(STAGE, "restriction", format!("{e:?}")))?,
+            );
+        }
+        let mut position = vec![0; condensed.n_skeleton()];
+        for (k, &i) in mg.finest_order().iter().enumerate() {
+            position[i] = k;
+        }
         Ok(HessianCycle {
             mg,
             position,
             restrictions,
             applied: vec![NONE; condensed.interior.len()],
         })
+    }
+
+    /// The cycle with every term taken off: K's hierarchy, for the next
+    /// level to stand on.
+    fn without_terms(mut self, condensed: &Condensed) -> Result<Self> {
+        self.follow(condensed, &vec![NONE; self.applied.len()])?;
+        Ok(self)
     }
 
     /// K u (skeleton numbering): the finest operator H = K + Σ w_i c_i c_iᵀ
@@ -588,11 +608,12 @@ impl HessianCycle {
         ku
     }
 
-    /// The operators made those of the active set of `clamped`.
-    fn follow(&mut self, condensed: &Condensed, clamped: &Clamped) -> Result<()> {
+    /// The operators made those of `active` (per interior unknown, the row
+    /// whose bound it sits on, or NONE).
+    fn follow(&mut self, condensed: &Condensed, active: &[usize]) -> Result<()> {
         let mut changed = false;
-        for j in 0..clamped.active.len() {
-            let (old, new) = (self.applied[j], clamped.active[j]);
+        for j in 0..active.len() {
+            let (old, new) = (self.applied[j], active[j]);
             if old == new {
                 continue;
             }
@@ -668,6 +689,8 @@ impl HessianCycle {
 /// What one level's Newton iteration did.
 struct LevelSolve {
     u: Vec<f64>,
+    /// The level's cycle without its terms, below the finest level.
+    cycle: Option<HessianCycle>,
     x: Vec<f64>,
     lambda: Vec<f64>,
     measures: KktMeasures,
@@ -731,36 +754,43 @@ pub fn multigrid_newton(
             options.tol,
             options.show_progress,
         );
-    let set_up =
-        |problem: &ContactProblem, l: usize| LevelSetup::new(problem, &prolongations[..l], options);
+    let set_up = |problem: &ContactProblem, l: usize| LevelSetup::new(problem, l, options);
     let mut per_level = Vec::with_capacity(finest + 1);
     // Levels 0 … finest − 1 from the coarsest, each from the previous one's
-    // u, each problem dropped once solved; the finest level's set-up (most
-    // of a level's cost before its first Newton step) is made meanwhile on
-    // a second thread when there is one.
+    // u and on its cycle, each problem dropped once solved; the finest
+    // level's set-up (most of a level's cost before its first Newton step)
+    // is made meanwhile on a second thread when there is one.
     let solve_coarser = |builder: &mut ReportBuilder,
                          per_level: &mut Vec<(usize, usize)>|
-     -> Result<Vec<f64>> {
-        let mut u: Vec<f64> = Vec::new();
+     -> Result<(Vec<f64>, Option<HessianCycle>)> {
+        let (mut u, mut cycle) = (Vec::new(), None);
         for (l, level_problem) in coarser.into_iter().enumerate() {
             let setup = set_up(&level_problem, l)?;
-            let solved = solve_level(setup, &level_problem, &u, l, &transfers, options, builder)?;
+            let solved = solve_level(
+                setup,
+                cycle,
+                &level_problem,
+                &u,
+                &transfers,
+                options,
+                builder,
+            )?;
             per_level.push((solved.newton_steps, solved.cg_iterations));
-            u = solved.u;
+            (u, cycle) = (solved.u, solved.cycle);
         }
-        Ok(u)
+        Ok((u, cycle))
     };
-    let (u, finest_setup) = beside(
+    let (coarser_solved, finest_setup) = beside(
         options.threads,
         || solve_coarser(&mut builder, &mut per_level),
         || set_up(problem, finest),
     );
-    let (u, finest_setup) = (u?, finest_setup?);
+    let ((u, cycle), finest_setup) = (coarser_solved?, finest_setup?);
     let solved = solve_level(
         finest_setup,
+        cycle,
         problem,
         &u,
-        finest,
         &transfers,
         options,
         &mut builder,
@@ -856,48 +886,56 @@ impl Transfers<'_> {
     }
 }
 
-/// A level made ready for Newton: its problem condensed, the V-cycle of
-/// its K built, the dual diagonal of its KKT measure.
+/// A level made ready for Newton: its problem condensed, its K in sweep
+/// order (the top of its V-cycle), the dual diagonal of its KKT measure.
 struct LevelSetup {
+    level: usize,
     condensed: Condensed,
-    cycle: HessianCycle,
+    k: SweptLevel,
     compliance: Vec<f64>,
 }
 
 impl LevelSetup {
     fn new(
         problem: &ContactProblem,
-        prolongations: &[SparseColMat<usize, f64>],
+        level: usize,
         options: &MultigridNewtonOptions,
     ) -> Result<Self> {
         let (condensed, k) = Condensed::of(problem)?;
-        let cycle = HessianCycle::new(&condensed, &k, prolongations, options.cycle)?;
-        drop(k);
+        let k = SweptLevel::new(level, &k, options.cycle.order)?;
         Ok(LevelSetup {
+            level,
             compliance: jacobi_dual_diagonal(problem),
             condensed,
-            cycle,
+            k,
         })
     }
 }
 
-/// Newton on level `level` (module docs), from the interpolant of the
-/// level below's skeleton solution `coarse_u` (from 0 on level 0).
+/// Newton on the level of `setup` (module docs), from the interpolant of
+/// the level below's skeleton solution `coarse_u` (from 0 on level 0),
+/// its cycle stacked on the level below's (`below`, without its terms).
 fn solve_level(
     setup: LevelSetup,
+    below: Option<HessianCycle>,
     problem: &ContactProblem,
     coarse_u: &[f64],
-    level: usize,
     transfers: &Transfers,
     options: &MultigridNewtonOptions,
     builder: &mut ReportBuilder,
 ) -> Result<LevelSolve> {
     let LevelSetup {
+        level,
         condensed,
-        mut cycle,
+        k,
         compliance,
     } = setup;
     let condensed = &condensed;
+    let below = level.checked_sub(1).map(|l| {
+        let cycle = below.expect("every level above the coarsest has the cycle below");
+        (cycle, &transfers.prolongations[l])
+    });
+    let mut cycle = HessianCycle::on(condensed, k, below, options.cycle)?;
     let mut u = match level {
         0 => vec![0.0; condensed.n_skeleton()],
         _ => transfers.start(level, coarse_u, condensed.n_skeleton())?,
@@ -956,8 +994,13 @@ fn solve_level(
         );
         let converged = measures.kkt <= tol;
         if converged || newton_steps >= options.max_iter {
+            let cycle = match level == transfers.finest {
+                true => None,
+                false => Some(cycle.without_terms(condensed)?),
+            };
             return Ok(LevelSolve {
                 u,
+                cycle,
                 x,
                 lambda,
                 measures,
@@ -971,7 +1014,7 @@ fn solve_level(
         // the step's solve (at 2049² they are 0.4 GB).
         drop((x, ax, cx, ct_lambda));
         old_lambda = lambda;
-        cycle.follow(condensed, &clamped)?;
+        cycle.follow(condensed, &clamped.active)?;
         let rhs: Vec<f64> = gradient.iter().map(|g| -g).collect();
         // While the active set moves, the step mostly moves it: a loose
         // solve. Once it holds, as tight as the KKT measure needs.
