@@ -611,13 +611,30 @@ impl HessianCycle {
     /// The operators made those of `active` (per interior unknown, the row
     /// whose bound it sits on, or NONE).
     fn follow(&mut self, condensed: &Condensed, active: &[usize]) -> Result<()> {
-        let mut changed = false;
-        for j in 0..active.len() {
-            let (old, new) = (self.applied[j], active[j]);
-            if old == new {
-                continue;
+        // The changed terms in the sweep order of their rows' first
+        // unknowns: the operators' columns are then read front by front,
+        // not scattered (a whole contact set enters at a level's first step).
+        let first_position = |i: usize| {
+            let k = condensed.row_ptr[i];
+            match k < condensed.row_ptr[i + 1] {
+                true => self.position[condensed.row_cols[k] as usize],
+                false => 0,
             }
-            changed = true;
+        };
+        let mut changed: Vec<(usize, usize)> = (0..active.len())
+            .filter(|&j| self.applied[j] != active[j])
+            .map(|j| {
+                let row = if active[j] != NONE {
+                    active[j]
+                } else {
+                    self.applied[j]
+                };
+                (first_position(row), j)
+            })
+            .collect();
+        changed.sort_unstable();
+        for &(_, j) in &changed {
+            let (old, new) = (self.applied[j], active[j]);
             for (row, sign) in [(old, -1.0), (new, 1.0)] {
                 if row != NONE {
                     self.add_term(condensed, row, sign * condensed.term_weight(j, row))?;
@@ -625,7 +642,7 @@ impl HessianCycle {
             }
             self.applied[j] = new;
         }
-        if changed {
+        if !changed.is_empty() {
             self.mg.operators_changed()?;
         }
         Ok(())
