@@ -161,8 +161,8 @@ pub struct MembraneSystem<'m> {
     exact: Option<ExactSolution>,
     /// The scene file, named by the errors found after setup.
     source: PathBuf,
-    /// u at every dof from the boundary values g_D (`mesh.dirichlet_value`);
-    /// only the fixed dofs' entries are used. All 0 without boundary values.
+    /// The boundary values g_D (`mesh.dirichlet_value`) at the fixed dofs,
+    /// 0 at the others (never read). All 0 without boundary values.
     pub boundary_values: Vec<f64>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
@@ -215,17 +215,15 @@ impl<'m> MembraneSystem<'m> {
         let boundary_values = match &scene.mesh.dirichlet_value {
             None => vec![0.0; u_space.n_dofs()],
             Some(g_d) => {
-                let nodes = dof_points(&u_space);
-                g_d.check_finite_at(
-                    "mesh.dirichlet_value",
-                    nodes
-                        .iter()
-                        .zip(&fixed)
-                        .filter(|(_, f)| **f)
-                        .map(|(x, _)| *x),
-                )
-                .map_err(|r| expression_error("mesh.dirichlet_value", r))?;
-                u_space.interpolate(|x| g_d.eval(x))
+                // Evaluated at the fixed dofs only: the only entries read.
+                let nodes = fixed_dof_points(&u_space, &fixed);
+                g_d.check_finite_at("mesh.dirichlet_value", nodes.iter().map(|(_, x)| *x))
+                    .map_err(|r| expression_error("mesh.dirichlet_value", r))?;
+                let mut values = vec![0.0; u_space.n_dofs()];
+                for (d, x) in nodes {
+                    values[d] = g_d.eval(x);
+                }
+                values
             }
         };
         // φ_h (and ψ₂,h), the P1 interpolants of the obstacles at the vertices.
@@ -547,6 +545,27 @@ fn dof_points(space: &Space) -> Vec<[f64; 2]> {
         let (dofs, n) = space.element_dofs(t);
         for i in 0..n {
             points[dofs[i]] = g.point(nodes[i]);
+        }
+    }
+    points
+}
+
+/// The fixed dofs of `space` (`fixed`) with their nodes, each once.
+fn fixed_dof_points(space: &Space, fixed: &[bool]) -> Vec<(usize, [f64; 2])> {
+    let nodes = space.element.nodes();
+    let mut seen = vec![false; space.n_dofs()];
+    let mut points = Vec::new();
+    for t in 0..space.mesh.n_triangles() {
+        let (dofs, n) = space.element_dofs(t);
+        if !dofs[..n].iter().any(|&d| fixed[d] && !seen[d]) {
+            continue;
+        }
+        let g = TriangleGeometry::new(space.mesh, t);
+        for (&d, &node) in dofs[..n].iter().zip(&nodes) {
+            if fixed[d] && !seen[d] {
+                seen[d] = true;
+                points.push((d, g.point(node)));
+            }
         }
     }
     points
