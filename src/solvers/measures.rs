@@ -82,33 +82,28 @@ pub fn kkt_measures_with(
 ) -> KktMeasures {
     let n_primal = problem.n_primal;
     let cx = products.cx;
-    let mut r = match products.ax {
-        Some(ax) => ax.to_vec(),
-        None => problem.product(x, threads),
+    let computed_ax;
+    let ax = match products.ax {
+        Some(ax) => ax,
+        None => {
+            computed_ax = problem.product(x, threads);
+            &computed_ax
+        }
     };
     // The scale of stationarity: the largest of its three terms ‖F‖, ‖A x‖,
     // ‖Cᵀλ‖ (primal rows), so a zero load (the obstacle alone pushes) is
     // not divided by ‖F‖ = 0; equal to ‖F‖ whenever the load dominates.
-    let mut force_scale = norm2(&r[..n_primal]).max(norm2(&problem.rhs[..n_primal]));
-    for (ri, fi) in r.iter_mut().zip(&problem.rhs) {
-        *ri -= fi;
-    }
+    let mut force_scale = norm2(&ax[..n_primal]).max(norm2(&problem.rhs[..n_primal]));
     let mut m = KktMeasures::default();
     let x_scale = norm_inf(&x[..n_primal]);
     let f_norm = norm2(&problem.rhs[..n_primal]).max(f64::MIN_POSITIVE);
+    let mut computed_ct = None;
     if let Some(c) = &problem.constraint {
-        let computed_ct;
         let ct_lambda = match products.ct_lambda {
             Some(v) => v,
-            None => {
-                computed_ct = mat_t_vec(&c.matrix, lambda);
-                &computed_ct
-            }
+            None => computed_ct.insert(mat_t_vec(&c.matrix, lambda)),
         };
         force_scale = force_scale.max(norm2(&ct_lambda[..n_primal.min(ct_lambda.len())]));
-        for (ri, ci) in r.iter_mut().zip(ct_lambda) {
-            *ri -= ci;
-        }
         let computed;
         let cx = match cx {
             Some(cx) => cx,
@@ -158,8 +153,23 @@ pub fn kkt_measures_with(
     } else {
         m.gap_scale = x_scale;
     }
-    m.stationarity = norm2(&r[..n_primal]) / force_scale.max(f64::MIN_POSITIVE);
-    m.tangency = norm2(&r[n_primal..]);
+    // A x − F − Cᵀλ, row by row (not stored): its primal rows' norm is
+    // stationarity, the equality rows' tangency.
+    let ct_lambda = products.ct_lambda.or(computed_ct.as_deref());
+    let residual_norm = |rows: std::ops::Range<usize>| {
+        rows.map(|i| {
+            let r = ax[i] - problem.rhs[i];
+            let r = match ct_lambda {
+                Some(ct) if i < ct.len() => r - ct[i],
+                _ => r,
+            };
+            r * r
+        })
+        .sum::<f64>()
+        .sqrt()
+    };
+    m.stationarity = residual_norm(0..n_primal) / force_scale.max(f64::MIN_POSITIVE);
+    m.tangency = residual_norm(n_primal..ax.len().min(problem.rhs.len()));
     let tangency_rel = m.tangency / (f_norm + norm2(x));
     m.kkt = m.kkt.max(m.stationarity).max(tangency_rel);
     m
