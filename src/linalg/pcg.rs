@@ -3,6 +3,7 @@
 //! (one V-cycle of [`super::Multigrid`]: `Multigrid::precondition`).
 
 use faer::sparse::SparseColMat;
+use faer::Index;
 
 /// What [`pcg`] did.
 #[derive(Debug, Clone, PartialEq)]
@@ -17,8 +18,8 @@ pub struct CgReport {
 /// Solves A x = b from the given x until ‖b − A x‖₂ ≤ `rtol` ‖b‖₂ or
 /// `max_iter` iterations (all restarts together); `precondition(r, z)`
 /// writes z = M⁻¹ r.
-pub fn pcg(
-    a: &SparseColMat<usize, f64>,
+pub fn pcg<I: Index>(
+    a: &SparseColMat<I, f64>,
     b: &[f64],
     x: &mut [f64],
     mut precondition: impl FnMut(&[f64], &mut [f64]),
@@ -90,30 +91,29 @@ fn dot(u: &[f64], v: &[f64]) -> f64 {
 /// r = b − A x for a symmetric A stored whole in compressed columns:
 /// column i is row i, so each r_i is one dot product (reads only, where
 /// the column-oriented product scatters into r).
-pub(crate) fn residual(a: &SparseColMat<usize, f64>, b: &[f64], x: &[f64], r: &mut [f64]) {
-    let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+pub(crate) fn residual<I: Index>(a: &SparseColMat<I, f64>, b: &[f64], x: &[f64], r: &mut [f64]) {
     for (i, ri) in r.iter_mut().enumerate() {
-        let (start, end) = (col_ptr[i], col_ptr[i + 1]);
-        let ax: f64 = rows[start..end]
-            .iter()
-            .zip(&values[start..end])
-            .map(|(&j, &v)| v * x[j])
-            .sum();
-        *ri = b[i] - ax;
+        *ri = b[i] - row_dot(a, i, x);
     }
 }
 
 /// q = A p for a symmetric A stored whole (as [`residual`]).
-pub(crate) fn product(a: &SparseColMat<usize, f64>, p: &[f64], q: &mut [f64]) {
-    let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+pub(crate) fn product<I: Index>(a: &SparseColMat<I, f64>, p: &[f64], q: &mut [f64]) {
     for (i, qi) in q.iter_mut().enumerate() {
-        let (start, end) = (col_ptr[i], col_ptr[i + 1]);
-        *qi = rows[start..end]
-            .iter()
-            .zip(&values[start..end])
-            .map(|(&j, &v)| v * p[j])
-            .sum();
+        *qi = row_dot(a, i, p);
     }
+}
+
+/// Row i of a symmetric A stored whole (its column i) times x.
+#[inline]
+fn row_dot<I: Index>(a: &SparseColMat<I, f64>, i: usize, x: &[f64]) -> f64 {
+    let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
+    let (start, end) = (col_ptr[i].zx(), col_ptr[i + 1].zx());
+    rows[start..end]
+        .iter()
+        .zip(&values[start..end])
+        .map(|(&j, &v)| v * x[j.zx()])
+        .sum()
 }
 
 pub(crate) fn norm2(v: &[f64]) -> f64 {
