@@ -845,7 +845,7 @@ impl Transfers<'_> {
     /// obstacle by O(H²) (its curvature times the coarse mesh size
     /// squared): the fine rows would see that gap, the bubbles fill it at
     /// λ ~ gap/h², and Newton's first steps would go to taking it back
-    /// (half the contact set leaving, then returning). So each unknown is
+    /// (a quarter of the contact set leaving, then returning). So each unknown is
     /// kept at or above φ_h + P min(0, u − φ_H), the fine obstacle less the
     /// interpolated penetration of the coarse solution (strictly inside
     /// the contact set, as the solution is); the upper obstacle mirrored.
