@@ -162,8 +162,8 @@ fn each_level_starts_on_the_finer_obstacle_where_the_coarser_one_touches() {
     // The ball's obstacle is curved: the interpolant of a coarse solution
     // lying on it misses the finer obstacle by O(H²) at the new vertices.
     // Started from that interpolant alone, the first Newton step of the
-    // finest level (129²) took 784 of its 3096 contact rows out of contact
-    // and the second put 718 back; started on the finer obstacle, the
+    // finest level (129²) takes 784 of its 3096 contact rows out of contact
+    // and the second puts 718 back; started on the finer obstacle, the
     // first step moves the rim only: 68 rows.
     let (mg, _) = multigrid_and_active_set(
         "pipelines/scenes/peers/ball.toml",

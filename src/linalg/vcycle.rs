@@ -96,19 +96,17 @@ impl SweptLevel {
             SweepOrder::Numbered => (0..a.nrows()).collect(),
             SweepOrder::CuthillMcKee => cuthill_mckee(a),
         };
-        // Stored in sweep order: the sweeps then read x and A front by
-        // front, not scattered over the hierarchy's numbering (twice as
-        // fast a V-cycle at 1025²).
-        if u32::try_from(a.compute_nnz()).is_err() {
+        let nnz = a.compute_nnz();
+        if u32::try_from(nnz).is_err() {
             return Err(Error::numerical(
                 STAGE,
                 "size",
-                format!(
-                    "level {l}: {} entries, above the 32-bit indices of a level",
-                    a.compute_nnz()
-                ),
+                format!("level {l}: {nnz} entries, above the 32-bit indices of a level"),
             ));
         }
+        // Stored in sweep order: the sweeps then read x and A front by
+        // front, not scattered over the hierarchy's numbering (twice as
+        // fast a V-cycle at 1025²).
         let position = inverse(&order);
         let a = renumbered(a, &position, &position);
         let diagonal = order.iter().map(|&i| diagonal[i]).collect();

@@ -146,8 +146,8 @@ pub struct MultigridNewtonOptions {
     /// taken by an earlier solve: an error naming what is missing).
     pub levels: Option<LevelsHandle>,
     pub cycle: MultigridOptions,
-    /// With 2 or more, the finest level is set up (condensed, its V-cycle
-    /// built) on a second thread while the coarser levels solve.
+    /// With 2 or more, the finest level is set up (condensed, its K put in
+    /// sweep order) on a second thread while the coarser levels solve.
     pub threads: usize,
 }
 
