@@ -109,7 +109,7 @@ fn run_case(n: usize, method: &str) {
             assert!(report.converged, "{report:?}");
             let t = Instant::now();
             let mut y = vec![0.0; b.len()];
-            let cg = pcg(&a, &b, &mut y, |r, z| mg.precondition(r, z), RTOL, 100);
+            let cg = pcg(&a, &b, &mut y, |r, z| mg.precondition(r, z), RTOL, 100, 1);
             let pcg_s = t.elapsed().as_secs_f64();
             assert!(cg.converged, "{cg:?}");
             let peak_mb = peak_rss_kb().unwrap_or(0) as f64 / 1024.0;

@@ -205,6 +205,7 @@ fn run_multigrid(
         |r, z| mg.precondition(r, z),
         RTOL,
         MAX_ITER,
+        1,
     );
     let pcg_s = t.elapsed().as_secs_f64();
     let peak_mb = peak_rss_kb().unwrap_or(0) as f64 / 1024.0;

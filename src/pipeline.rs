@@ -445,6 +445,7 @@ pub fn solver_options(
                 // symmetric sweeps' 15 and 9.4 s (docs/solvers.md, "Newton
                 // multigrid").
                 smoother: Smoother::GaussSeidel,
+                threads: linear.threads,
                 ..MultigridOptions::default()
             },
         }),

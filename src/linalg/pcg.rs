@@ -1,9 +1,60 @@
 //! Preconditioned conjugate gradients for a symmetric positive definite
 //! matrix stored whole, with any symmetric positive definite preconditioner
-//! (one V-cycle of [`super::Multigrid`]: `Multigrid::precondition`).
+//! (one V-cycle of [`super::Multigrid`]: `Multigrid::precondition`), and
+//! the vector kernels it shares with the V-cycle.
+//!
+//! **Halves.** A vector of at least [`HALVES_FROM`] entries is worked on in
+//! two halves, [0, n/2) and [n/2, n) ([`cut`]): on two threads when the
+//! caller allows two, else one after the other. Sums add the two halves'
+//! sums, so the numbers are the same on one thread or two.
 
+use super::kernels::beside;
 use faer::sparse::SparseColMat;
 use faer::Index;
+use std::ops::Range;
+
+/// Vectors of at least this many entries are worked on in two halves (the
+/// module docs). At 2¹⁶ entries a half takes about 0.1 ms per pass, a
+/// second thread's start and join some 30 µs.
+pub(crate) const HALVES_FROM: usize = 1 << 16;
+
+/// Where the loops over a vector of n entries cut it: n/2, or n (not cut)
+/// below [`HALVES_FROM`].
+pub(crate) fn cut(n: usize) -> usize {
+    match n >= HALVES_FROM {
+        true => n / 2,
+        false => n,
+    }
+}
+
+/// `work(offset, part)` on `out[..m]` (offset 0) and `out[m..]` (offset
+/// m), on two threads when `threads` allows two and the second part is not
+/// empty; the parts' results combined in that order.
+pub(crate) fn on_halves<T: Send, R: Send>(
+    threads: usize,
+    out: &mut [T],
+    m: usize,
+    work: impl Fn(usize, &mut [T]) -> R + Sync,
+    combine: impl FnOnce(R, R) -> R,
+) -> R {
+    let (first, second) = out.split_at_mut(m);
+    let threads = if second.is_empty() { 1 } else { threads };
+    let (a, b) = beside(threads, || work(0, first), || work(m, second));
+    combine(a, b)
+}
+
+/// Σ `part(range)` over [0, m) and [m, n) (m = [`cut`]), the halves' sums
+/// added in that order.
+pub(crate) fn sum_halves(
+    threads: usize,
+    n: usize,
+    part: impl Fn(Range<usize>) -> f64 + Sync,
+) -> f64 {
+    let m = cut(n);
+    let threads = if m == n { 1 } else { threads };
+    let (a, b) = beside(threads, || part(0..m), || part(m..n));
+    a + b
+}
 
 /// What [`pcg`] did.
 #[derive(Debug, Clone, PartialEq)]
@@ -17,7 +68,7 @@ pub struct CgReport {
 
 /// Solves A x = b from the given x until ‖b − A x‖₂ ≤ `rtol` ‖b‖₂ or
 /// `max_iter` iterations (all restarts together); `precondition(r, z)`
-/// writes z = M⁻¹ r.
+/// writes z = M⁻¹ r. Its vector work in halves on `threads` (module docs).
 pub fn pcg<I: Index>(
     a: &SparseColMat<I, f64>,
     b: &[f64],
@@ -25,16 +76,19 @@ pub fn pcg<I: Index>(
     mut precondition: impl FnMut(&[f64], &mut [f64]),
     rtol: f64,
     max_iter: usize,
+    threads: usize,
 ) -> CgReport {
-    let n = b.len();
-    let norm_b = norm2(b);
+    let (n, m) = (b.len(), cut(b.len()));
+    let dot_halves = |u: &[f64], v: &[f64]| sum_halves(threads, n, |k| dot(&u[k.clone()], &v[k]));
+    let norm_halves = |v: &[f64]| dot_halves(v, v).sqrt();
+    let norm_b = norm_halves(b);
     let target = rtol * norm_b;
     // From x = 0 (a Newton step's solve) the residual is b: no product.
     let mut r = match x.iter().all(|&v| v == 0.0) {
         true => b.to_vec(),
         false => {
             let mut r = vec![0.0; n];
-            residual(a, b, x, &mut r);
+            residual(a, b, x, &mut r, threads);
             r
         }
     };
@@ -44,38 +98,60 @@ pub fn pcg<I: Index>(
     // The recurrence's residual drifts from b − A x near round-off: CG
     // restarts from x until the true residual, computed afresh after each
     // run of iterations, meets the target (that one is the report's).
-    while norm_b > 0.0 && iterations < max_iter && norm2(&r) > target {
+    while norm_b > 0.0 && iterations < max_iter && norm_halves(&r) > target {
         precondition(&r, &mut z);
         let mut p = z.clone();
-        let mut rz = dot(&r, &z);
+        let mut rz = dot_halves(&r, &z);
         while iterations < max_iter {
             iterations += 1;
-            product(a, &p, &mut q);
-            let pq = dot(&p, &q);
+            product(a, &p, &mut q, threads);
+            let pq = dot_halves(&p, &q);
             if pq.is_nan() || pq <= 0.0 {
                 break; // not positive definite, or p = 0
             }
             let alpha = rz / pq;
-            for i in 0..n {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * q[i];
-            }
-            if norm2(&r) <= target {
+            // x += α p and r −= α q, half by half, with ‖r‖² of the new r.
+            let (x_first, x_second) = x.split_at_mut(m);
+            let (r_first, r_second) = r.split_at_mut(m);
+            let step = |offset: usize, x: &mut [f64], r: &mut [f64]| {
+                let (p, q) = (&p[offset..], &q[offset..]);
+                let mut rr = 0.0;
+                for k in 0..x.len() {
+                    x[k] += alpha * p[k];
+                    r[k] -= alpha * q[k];
+                    rr += r[k] * r[k];
+                }
+                rr
+            };
+            let (first, second) = beside(
+                if m == n { 1 } else { threads },
+                || step(0, x_first, r_first),
+                || step(m, x_second, r_second),
+            );
+            if (first + second).sqrt() <= target {
                 break;
             }
             precondition(&r, &mut z);
-            let rz_next = dot(&r, &z);
+            let rz_next = dot_halves(&r, &z);
             let beta = rz_next / rz;
             rz = rz_next;
-            for i in 0..n {
-                p[i] = z[i] + beta * p[i];
-            }
+            on_halves(
+                threads,
+                &mut p,
+                m,
+                |offset, p| {
+                    for (k, pk) in p.iter_mut().enumerate() {
+                        *pk = z[offset + k] + beta * *pk;
+                    }
+                },
+                |_, _| (),
+            );
         }
-        residual(a, b, x, &mut r);
+        residual(a, b, x, &mut r, threads);
     }
     let relative_residual = match norm_b {
-        0.0 => norm2(&r),
-        _ => norm2(&r) / norm_b,
+        0.0 => norm_halves(&r),
+        _ => norm_halves(&r) / norm_b,
     };
     CgReport {
         iterations,
@@ -91,17 +167,37 @@ fn dot(u: &[f64], v: &[f64]) -> f64 {
 /// r = b − A x for a symmetric A stored whole in compressed columns:
 /// column i is row i, so each r_i is one dot product (reads only, where
 /// the column-oriented product scatters into r).
-pub(crate) fn residual<I: Index>(a: &SparseColMat<I, f64>, b: &[f64], x: &[f64], r: &mut [f64]) {
-    for (i, ri) in r.iter_mut().enumerate() {
-        *ri = b[i] - row_dot(a, i, x);
-    }
+/// In halves on `threads` (module docs).
+pub(crate) fn residual<I: Index>(
+    a: &SparseColMat<I, f64>,
+    b: &[f64],
+    x: &[f64],
+    r: &mut [f64],
+    threads: usize,
+) {
+    let m = cut(r.len());
+    let rows = |offset: usize, r: &mut [f64]| {
+        for (k, rk) in r.iter_mut().enumerate() {
+            *rk = b[offset + k] - row_dot(a, offset + k, x);
+        }
+    };
+    on_halves(threads, r, m, rows, |_, _| ());
 }
 
 /// q = A p for a symmetric A stored whole (as [`residual`]).
-pub(crate) fn product<I: Index>(a: &SparseColMat<I, f64>, p: &[f64], q: &mut [f64]) {
-    for (i, qi) in q.iter_mut().enumerate() {
-        *qi = row_dot(a, i, p);
-    }
+pub(crate) fn product<I: Index>(
+    a: &SparseColMat<I, f64>,
+    p: &[f64],
+    q: &mut [f64],
+    threads: usize,
+) {
+    let m = cut(q.len());
+    let rows = |offset: usize, q: &mut [f64]| {
+        for (k, qk) in q.iter_mut().enumerate() {
+            *qk = row_dot(a, offset + k, p);
+        }
+    };
+    on_halves(threads, q, m, rows, |_, _| ());
 }
 
 /// Row i of a symmetric A stored whole (its column i) times x.

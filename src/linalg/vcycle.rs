@@ -6,12 +6,13 @@
 //! The matrices are stored whole (both triangles) in compressed columns:
 //! Gauss–Seidel reads row i of a symmetric A as its column i.
 
-use super::pcg::{norm2, pcg, product, residual, CgReport};
+use super::pcg::{cut, norm2, on_halves, pcg, product, residual, CgReport};
 use super::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::error::{Error, Result};
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use faer::{Index, Par};
+use std::ops::Range;
 
 const STAGE: &str = "multigrid";
 
@@ -46,6 +47,10 @@ pub struct MultigridOptions {
     pub order: SweepOrder,
     /// The coarsest level's direct solver.
     pub coarse: LinearOptions,
+    /// With 2 or more, the levels of at least 2¹⁶ unknowns are smoothed,
+    /// and their vectors worked on, in two halves on two threads (the same
+    /// numbers on one: [`SweptLevel`]).
+    pub threads: usize,
 }
 
 impl Default for MultigridOptions {
@@ -61,6 +66,7 @@ impl Default for MultigridOptions {
                 threads: 1,
                 ..LinearOptions::default()
             },
+            threads: 1,
         }
     }
 }
@@ -84,6 +90,13 @@ pub enum SweepOrder {
 /// stored in its sweep order, its diagonal checked positive. Building it
 /// (the ordering and the renumbering) is most of a level's set-up and needs
 /// no other level.
+///
+/// A level of at least 2¹⁶ unknowns is swept in two halves of its sweep
+/// order, [0, m) and [m, n) with m = n/2 ([`Halves`]): a forward sweep
+/// visits each half's rows not coupled to the other half, the two halves
+/// at once (they share no entry), then the rows that couple across, in
+/// order; a backward sweep is its reverse. That is Gauss–Seidel in one
+/// order, whichever the number of threads: the same numbers on one.
 pub struct SweptLevel(Level);
 
 impl SweptLevel {
@@ -110,7 +123,55 @@ impl SweptLevel {
         let position = inverse(&order);
         let a = renumbered(a, &position, &position);
         let diagonal = order.iter().map(|&i| diagonal[i]).collect();
-        Ok(SweptLevel(Level { a, diagonal, order }))
+        let halves = Halves::of(&a);
+        Ok(SweptLevel(Level {
+            a,
+            diagonal,
+            order,
+            halves,
+        }))
+    }
+}
+
+/// A level's two halves of rows, [0, m) and [m, n) in sweep order, for its
+/// Gauss–Seidel sweeps ([`SweptLevel`]); m = n below 2¹⁶ unknowns.
+struct Halves {
+    m: usize,
+    /// The rows coupled to the other half, ascending.
+    across: Vec<usize>,
+    /// Each half's other rows, as ascending runs.
+    runs: [Vec<Range<usize>>; 2],
+}
+
+impl Halves {
+    fn of(a: &SparseColMat<u32, f64>) -> Self {
+        let n = a.nrows();
+        let m = cut(n);
+        let (col_ptr, rows) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
+        let across: Vec<usize> = (0..n)
+            .filter(|&i| {
+                let side = i >= m;
+                rows[col_ptr[i] as usize..col_ptr[i + 1] as usize]
+                    .iter()
+                    .any(|&j| (j as usize >= m) != side)
+            })
+            .collect();
+        let runs_between = |half: Range<usize>| {
+            let mut runs = Vec::new();
+            let mut start = half.start;
+            for &i in across.iter().filter(|&&i| half.contains(&i)) {
+                if i > start {
+                    runs.push(start..i);
+                }
+                start = i + 1;
+            }
+            if half.end > start {
+                runs.push(start..half.end);
+            }
+            runs
+        };
+        let runs = [runs_between(0..m), runs_between(m..n)];
+        Halves { m, across, runs }
     }
 }
 
@@ -124,6 +185,7 @@ struct Level {
     a: SparseColMat<u32, f64>,
     diagonal: Vec<f64>,
     order: Vec<usize>,
+    halves: Halves,
 }
 
 /// A multigrid hierarchy of one SPD matrix, set up once, cycled many times.
@@ -297,6 +359,7 @@ impl Multigrid {
             &self.levels[self.levels.len() - 1].a,
             &x_swept,
             &mut y_swept,
+            self.options.threads,
         );
         let mut y = vec![0.0; x.len()];
         self.from_swept(&y_swept, &mut y);
@@ -369,6 +432,7 @@ impl Multigrid {
             },
             rtol,
             max_iter,
+            self.options.threads,
         )
     }
 
@@ -393,7 +457,7 @@ impl Multigrid {
         let norm_b = norm2(b);
         let mut r = vec![0.0; b.len()];
         let mut relative = |x: &[f64]| {
-            residual(a, &b_swept, x, &mut r);
+            residual(a, &b_swept, x, &mut r, self.options.threads);
             match norm_b {
                 0.0 => norm2(&r),
                 _ => norm2(&r) / norm_b,
@@ -424,17 +488,18 @@ impl Multigrid {
         }
         let level = &self.levels[l];
         let options = &self.options;
+        let threads = options.threads;
         for _ in 0..options.pre {
-            smooth(level, options.smoother, Sweep::Forward, b, x);
+            smooth(level, options.smoother, Sweep::Forward, b, x, threads);
         }
         let mut r = vec![0.0; b.len()];
-        residual(&level.a, b, x, &mut r);
-        let coarse_b = gather(&self.prolongations[l - 1], &r);
+        residual(&level.a, b, x, &mut r, threads);
+        let coarse_b = gather(&self.prolongations[l - 1], &r, threads);
         let mut coarse_x = vec![0.0; coarse_b.len()];
         self.cycle_at(l - 1, &coarse_b, &mut coarse_x);
         scatter_add(&self.prolongations[l - 1], &coarse_x, x);
         for _ in 0..options.post {
-            smooth(level, options.smoother, Sweep::Backward, b, x);
+            smooth(level, options.smoother, Sweep::Backward, b, x, threads);
         }
     }
 }
@@ -445,32 +510,63 @@ enum Sweep {
     Backward,
 }
 
-fn smooth(level: &Level, smoother: Smoother, sweep: Sweep, b: &[f64], x: &mut [f64]) {
+fn smooth(
+    level: &Level,
+    smoother: Smoother,
+    sweep: Sweep,
+    b: &[f64],
+    x: &mut [f64],
+    threads: usize,
+) {
     let a = &level.a;
     let (col_ptr, rows, values) = (a.symbolic().col_ptr(), a.symbolic().row_idx(), a.val());
     let d = &level.diagonal;
     match smoother {
         Smoother::GaussSeidel => {
-            let update = |i: usize, x: &mut [f64]| {
+            // Row i's update in the part of x that starts at `offset`: a
+            // half's rows read their own half only (`Halves`).
+            let update = |i: usize, offset: usize, x: &mut [f64]| {
                 let mut s = b[i];
                 for k in col_ptr[i] as usize..col_ptr[i + 1] as usize {
-                    s -= values[k] * x[rows[k] as usize];
+                    s -= values[k] * x[rows[k] as usize - offset];
                 }
                 // The loop subtracted a_ii x_i too.
-                x[i] += s / d[i];
+                x[i - offset] += s / d[i];
+            };
+            let halves = &level.halves;
+            let within_halves = |x: &mut [f64]| {
+                let sweep_half = |offset: usize, part: &mut [f64]| {
+                    // m > 0 whenever there are rows: offset 0 is the first half.
+                    let runs = &halves.runs[usize::from(offset > 0)];
+                    match sweep {
+                        Sweep::Forward => runs
+                            .iter()
+                            .for_each(|run| run.clone().for_each(|i| update(i, offset, part))),
+                        Sweep::Backward => runs.iter().rev().for_each(|run| {
+                            run.clone().rev().for_each(|i| update(i, offset, part))
+                        }),
+                    }
+                };
+                on_halves(threads, x, halves.m, sweep_half, |_, _| ());
             };
             match sweep {
-                Sweep::Forward => (0..b.len()).for_each(|i| update(i, x)),
-                Sweep::Backward => (0..b.len()).rev().for_each(|i| update(i, x)),
+                Sweep::Forward => {
+                    within_halves(x);
+                    halves.across.iter().for_each(|&i| update(i, 0, x));
+                }
+                Sweep::Backward => {
+                    halves.across.iter().rev().for_each(|&i| update(i, 0, x));
+                    within_halves(x);
+                }
             }
         }
         Smoother::SymmetricGaussSeidel => {
-            smooth(level, Smoother::GaussSeidel, Sweep::Forward, b, x);
-            smooth(level, Smoother::GaussSeidel, Sweep::Backward, b, x);
+            smooth(level, Smoother::GaussSeidel, Sweep::Forward, b, x, threads);
+            smooth(level, Smoother::GaussSeidel, Sweep::Backward, b, x, threads);
         }
         Smoother::Jacobi { omega } => {
             let mut r = vec![0.0; b.len()];
-            residual(a, b, x, &mut r);
+            residual(a, b, x, &mut r, threads);
             for i in 0..b.len() {
                 x[i] += omega * r[i] / d[i];
             }
@@ -604,16 +700,22 @@ fn diagonal<I: Index>(a: &SparseColMat<I, f64>) -> Vec<f64> {
         .collect()
 }
 
-/// Mᵀ v (M in compressed columns: one column of M per entry of the result).
-fn gather(m: &SparseColMat<usize, f64>, v: &[f64]) -> Vec<f64> {
+/// Mᵀ v (M in compressed columns: one column of M per entry of the
+/// result), in halves on `threads`.
+fn gather(m: &SparseColMat<usize, f64>, v: &[f64], threads: usize) -> Vec<f64> {
     let (col_ptr, rows, values) = (m.symbolic().col_ptr(), m.symbolic().row_idx(), m.val());
-    (0..m.ncols())
-        .map(|j| {
-            (col_ptr[j]..col_ptr[j + 1])
+    let mut out = vec![0.0; m.ncols()];
+    let columns = |offset: usize, part: &mut [f64]| {
+        for (k, o) in part.iter_mut().enumerate() {
+            let j = offset + k;
+            *o = (col_ptr[j]..col_ptr[j + 1])
                 .map(|k| values[k] * v[rows[k]])
-                .sum()
-        })
-        .collect()
+                .sum();
+        }
+    };
+    let half = cut(out.len());
+    on_halves(threads, &mut out, half, columns, |_, _| ());
+    out
 }
 
 /// y += M x (M in compressed columns).
