@@ -19,7 +19,7 @@ use crate::assembly::{
 };
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionSet, SetEvaluator};
-use crate::linalg::MatrixKind;
+use crate::linalg::{beside, MatrixKind};
 use crate::mesh::{Hierarchy, Mesh};
 use crate::multigrid::P1Levels;
 use crate::output::{AttrValue, ResultData};
@@ -166,6 +166,9 @@ pub struct MembraneSystem<'m> {
     pub boundary_values: Vec<f64>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
+    /// `solver.threads`: with 2 or more the constraint rows are assembled
+    /// beside the stiffness.
+    threads: usize,
 }
 
 impl<'m> MembraneSystem<'m> {
@@ -290,6 +293,7 @@ impl<'m> MembraneSystem<'m> {
             simulated.push("obstacle".into());
         }
         let system = MembraneSystem {
+            threads: scene.solver.threads as usize,
             mesh,
             pair: scene.element,
             u_space,
@@ -679,7 +683,7 @@ impl ModelSystem for MembraneSystem<'_> {
         // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
         let fixed_values = &self.boundary_values;
         let numbering = &self.numbering;
-        let (k, shift) = match self.pair {
+        let stiffness = || match self.pair {
             ElementPair::P1bP0 => self.p1_bubble_stiffness(&rule),
             _ => assemble_bilinear_eliminated(
                 u,
@@ -691,6 +695,41 @@ impl ModelSystem for MembraneSystem<'_> {
                 fixed_values,
             ),
         };
+        let constraint = || {
+            let obstacle = self.obstacle.as_ref()?;
+            let lam = &self.lambda_space;
+            let (mut c, c_shift) = match lam.element {
+                Element::P0 => assemble_p0_mass(u, numbering, fixed_values),
+                _ => assemble_bilinear_eliminated(
+                    lam,
+                    u,
+                    &rule,
+                    mass,
+                    &DofNumbering::all_free(lam.n_dofs()),
+                    numbering,
+                    fixed_values,
+                ),
+            };
+            let phi = self.phi.as_ref().expect("set up with the obstacle");
+            let (mut g_vec, mut weights) = self.obstacle_rows(phi, |x| obstacle.value(x), &rule);
+            // C_free x + C_fixed u_fixed ≥ g.
+            g_vec.iter_mut().zip(&c_shift).for_each(|(gi, s)| *gi += s);
+            if let (Some(upper), Some(upper_values)) = (&obstacle.upper, &self.upper) {
+                // u ≤ ψ₂ as −C x ≥ −g₂: the solvers see one stacked
+                // constraint [C; −C] x ≥ [g₁; −g₂], each bound with its weights.
+                let (g_upper, w_upper) =
+                    self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
+                c = stacked_with_negation(&c);
+                g_vec.extend(g_upper.iter().zip(&c_shift).map(|(g, s)| -(g + s)));
+                weights.extend(w_upper);
+            }
+            Some(Constraint {
+                matrix: c,
+                obstacle: g_vec,
+                weights,
+            })
+        };
+        let ((k, shift), constraint) = beside(self.threads, stiffness, constraint);
         let f_full = match g.as_constant() {
             Some(g) => assemble_constant_linear(u, g),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
@@ -701,43 +740,6 @@ impl ModelSystem for MembraneSystem<'_> {
             .zip(&shift)
             .map(|(a, b)| a + b)
             .collect();
-        let constraint = match &self.obstacle {
-            None => None,
-            Some(obstacle) => {
-                let lam = &self.lambda_space;
-                let (mut c, c_shift) = match lam.element {
-                    Element::P0 => assemble_p0_mass(u, numbering, fixed_values),
-                    _ => assemble_bilinear_eliminated(
-                        lam,
-                        u,
-                        &rule,
-                        mass,
-                        &DofNumbering::all_free(lam.n_dofs()),
-                        numbering,
-                        fixed_values,
-                    ),
-                };
-                let phi = self.phi.as_ref().expect("set up with the obstacle");
-                let (mut g_vec, mut weights) =
-                    self.obstacle_rows(phi, |x| obstacle.value(x), &rule);
-                // C_free x + C_fixed u_fixed ≥ g.
-                g_vec.iter_mut().zip(&c_shift).for_each(|(gi, s)| *gi += s);
-                if let (Some(upper), Some(upper_values)) = (&obstacle.upper, &self.upper) {
-                    // u ≤ ψ₂ as −C x ≥ −g₂: the solvers see one stacked
-                    // constraint [C; −C] x ≥ [g₁; −g₂], each bound with its weights.
-                    let (g_upper, w_upper) =
-                        self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
-                    c = stacked_with_negation(&c);
-                    g_vec.extend(g_upper.iter().zip(&c_shift).map(|(g, s)| -(g + s)));
-                    weights.extend(w_upper);
-                }
-                Some(Constraint {
-                    matrix: c,
-                    obstacle: g_vec,
-                    weights,
-                })
-            }
-        };
         let bubbles: Vec<usize> = u.bubble_start().into_iter().collect();
         Ok(ContactProblem {
             matrix: k,
