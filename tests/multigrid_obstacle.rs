@@ -11,7 +11,7 @@ mod common;
 
 use common::manifest_path;
 use obstacle_fem::mesh::Mesh;
-use obstacle_fem::pipeline::{scene_hierarchy, solve_on, Start};
+use obstacle_fem::pipeline::{scene_hierarchy, solve_on, write_refined_msh, Start};
 use obstacle_fem::scene::Scene;
 use obstacle_fem::solvers::SolveReport;
 
@@ -226,6 +226,7 @@ fn a_refined_mesh_is_written_and_read_back_as_it_is() {
     let dir = tempfile::tempdir().unwrap();
     let msh = dir.path().join("mesh.msh");
     let hierarchy = scene_hierarchy(&s, &msh).unwrap();
+    write_refined_msh(&s, &hierarchy, &msh).unwrap();
     let written = hierarchy.finest();
     let read = Mesh::read_msh(&msh).unwrap();
     assert_eq!(read.vertices, written.vertices);
