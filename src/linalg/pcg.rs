@@ -2,59 +2,11 @@
 //! matrix stored whole, with any symmetric positive definite preconditioner
 //! (one V-cycle of [`super::Multigrid`]: `Multigrid::precondition`), and
 //! the vector kernels it shares with the V-cycle.
-//!
-//! **Halves.** A vector of at least [`HALVES_FROM`] entries is worked on in
-//! two halves, [0, n/2) and [n/2, n) ([`cut`]): on two threads when the
-//! caller allows two, else one after the other. Sums add the two halves'
-//! sums, so the numbers are the same on one thread or two.
+//! Their loops run in halves on two threads (`kernels::cut`).
 
-use super::kernels::beside;
+use super::kernels::{beside, cut, on_halves, sum_halves};
 use faer::sparse::SparseColMat;
 use faer::Index;
-use std::ops::Range;
-
-/// Vectors of at least this many entries are worked on in two halves (the
-/// module docs). At 2¹⁶ entries a half takes about 0.1 ms per pass, a
-/// second thread's start and join some 30 µs.
-pub(crate) const HALVES_FROM: usize = 1 << 16;
-
-/// Where the loops over a vector of n entries cut it: n/2, or n (not cut)
-/// below [`HALVES_FROM`].
-pub(crate) fn cut(n: usize) -> usize {
-    match n >= HALVES_FROM {
-        true => n / 2,
-        false => n,
-    }
-}
-
-/// `work(offset, part)` on `out[..m]` (offset 0) and `out[m..]` (offset
-/// m), on two threads when `threads` allows two and the second part is not
-/// empty; the parts' results combined in that order.
-pub(crate) fn on_halves<T: Send, R: Send>(
-    threads: usize,
-    out: &mut [T],
-    m: usize,
-    work: impl Fn(usize, &mut [T]) -> R + Sync,
-    combine: impl FnOnce(R, R) -> R,
-) -> R {
-    let (first, second) = out.split_at_mut(m);
-    let threads = if second.is_empty() { 1 } else { threads };
-    let (a, b) = beside(threads, || work(0, first), || work(m, second));
-    combine(a, b)
-}
-
-/// Σ `part(range)` over [0, m) and [m, n) (m = [`cut`]), the halves' sums
-/// added in that order.
-pub(crate) fn sum_halves(
-    threads: usize,
-    n: usize,
-    part: impl Fn(Range<usize>) -> f64 + Sync,
-) -> f64 {
-    let m = cut(n);
-    let threads = if m == n { 1 } else { threads };
-    let (a, b) = beside(threads, || part(0..m), || part(m..n));
-    a + b
-}
 
 /// What [`pcg`] did.
 #[derive(Debug, Clone, PartialEq)]

@@ -6,7 +6,8 @@
 //! The matrices are stored whole (both triangles) in compressed columns:
 //! Gauss–Seidel reads row i of a symmetric A as its column i.
 
-use super::pcg::{cut, norm2, on_halves, pcg, product, residual, CgReport};
+use super::kernels::{cut, on_halves};
+use super::pcg::{norm2, pcg, product, residual, CgReport};
 use super::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::error::{Error, Result};
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;

@@ -717,8 +717,7 @@ impl ModelSystem for MembraneSystem<'_> {
             if let (Some(upper), Some(upper_values)) = (&obstacle.upper, &self.upper) {
                 // u ≤ ψ₂ as −C x ≥ −g₂: the solvers see one stacked
                 // constraint [C; −C] x ≥ [g₁; −g₂], each bound with its weights.
-                let (g_upper, w_upper) =
-                    self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
+                let (g_upper, w_upper) = self.obstacle_rows(upper_values, |x| upper.eval(x), &rule);
                 c = stacked_with_negation(&c);
                 g_vec.extend(g_upper.iter().zip(&c_shift).map(|(g, s)| -(g + s)));
                 weights.extend(w_upper);

@@ -1,8 +1,9 @@
 //! The measures every solver reports (docs/formulation.md §4), and the per-iteration history.
 
 use super::ContactProblem;
-use crate::linalg::{mat_t_vec, mat_vec, norm2, norm_inf};
+use crate::linalg::{mat_t_vec, mat_vec, over_halves};
 use crate::solvers::DualNorm;
+use std::ops::Range;
 
 /// KKT measures of an iterate (x, λ). Absolute values, and the relative
 /// ones that the tolerance applies to.
@@ -81,7 +82,6 @@ pub fn kkt_measures_with(
     threads: usize,
 ) -> KktMeasures {
     let n_primal = problem.n_primal;
-    let cx = products.cx;
     let computed_ax;
     let ax = match products.ax {
         Some(ax) => ax,
@@ -90,74 +90,96 @@ pub fn kkt_measures_with(
             &computed_ax
         }
     };
+    let mut computed_ct = None;
+    let mut computed_cx = None;
+    let mut computed_compliance = None;
+    let mut row_measures = RowMeasures::default();
+    if let Some(c) = &problem.constraint {
+        if products.ct_lambda.is_none() {
+            computed_ct = Some(mat_t_vec(&c.matrix, lambda));
+        }
+        let cx: &[f64] = match products.cx {
+            Some(cx) => cx,
+            None => computed_cx.insert(mat_vec(&c.matrix, x)),
+        };
+        let compliance: &[f64] = match products.compliance {
+            Some(v) => v,
+            None => computed_compliance.insert(jacobi_dual_diagonal(problem)),
+        };
+        // Maxima, minima and counts: the same in any order.
+        let rows = |rows: Range<usize>| {
+            let mut r = RowMeasures {
+                dual_min: f64::INFINITY,
+                ..RowMeasures::default()
+            };
+            for i in rows {
+                let (g, w, l) = (c.obstacle[i], c.weights[i], lambda[i]);
+                r.obstacle_scale = r.obstacle_scale.max((g / w).abs());
+                r.contact_gap = r.contact_gap.max((l * compliance[i]).abs());
+                r.lambda_max = r.lambda_max.max(l.abs());
+                let gap = c.mean_gap(cx, i);
+                r.penetration = r.penetration.max(-gap);
+                r.complementarity = r.complementarity.max((l * gap).abs());
+                r.dual_min = r.dual_min.min(l);
+                r.active += usize::from(l > 0.0);
+            }
+            r
+        };
+        row_measures = over_halves(threads, lambda.len(), rows, RowMeasures::and);
+    }
+    let ct_lambda = products.ct_lambda.or(computed_ct.as_deref());
+    // The primal rows in one pass, each sum in row order: ‖A x‖², ‖F‖²,
+    // ‖Cᵀλ‖², ‖x‖², max |x_i|, and the residual A x − F − Cᵀλ (not stored),
+    // whose norm is stationarity.
+    let primal = |rows: Range<usize>| {
+        let mut p = PrimalMeasures::default();
+        for i in rows {
+            let (a, f, xi) = (ax[i], problem.rhs[i], x[i]);
+            let ct = match ct_lambda {
+                Some(ct) if i < ct.len() => ct[i],
+                _ => 0.0,
+            };
+            p.ax2 += a * a;
+            p.rhs2 += f * f;
+            p.ct2 += ct * ct;
+            p.x2 += xi * xi;
+            p.x_max = p.x_max.max(xi.abs());
+            let r = a - f - ct;
+            p.residual2 += r * r;
+        }
+        p
+    };
+    let p = over_halves(threads, n_primal, primal, PrimalMeasures::and);
     // The scale of stationarity: the largest of its three terms ‖F‖, ‖A x‖,
     // ‖Cᵀλ‖ (primal rows), so a zero load (the obstacle alone pushes) is
     // not divided by ‖F‖ = 0; equal to ‖F‖ whenever the load dominates.
-    let mut force_scale = norm2(&ax[..n_primal]).max(norm2(&problem.rhs[..n_primal]));
+    let force_scale = p.ax2.sqrt().max(p.rhs2.sqrt()).max(p.ct2.sqrt());
     let mut m = KktMeasures::default();
-    let x_scale = norm_inf(&x[..n_primal]);
-    let f_norm = norm2(&problem.rhs[..n_primal]).max(f64::MIN_POSITIVE);
-    let mut computed_ct = None;
-    if let Some(c) = &problem.constraint {
-        let ct_lambda = match products.ct_lambda {
-            Some(v) => v,
-            None => computed_ct.insert(mat_t_vec(&c.matrix, lambda)),
-        };
-        force_scale = force_scale.max(norm2(&ct_lambda[..n_primal.min(ct_lambda.len())]));
-        let computed;
-        let cx = match cx {
-            Some(cx) => cx,
-            None => {
-                computed = mat_vec(&c.matrix, x);
-                &computed
-            }
-        };
-        let obstacle_scale = c
-            .obstacle
-            .iter()
-            .zip(&c.weights)
-            .fold(0.0f64, |s, (g, w)| s.max((g / w).abs()));
-        let computed_compliance;
-        let compliance = match products.compliance {
-            Some(v) => v,
-            None => {
-                computed_compliance = jacobi_dual_diagonal(problem);
-                &computed_compliance
-            }
-        };
-        let contact_gap = lambda
-            .iter()
-            .zip(compliance)
-            .fold(0.0f64, |s, (l, c)| s.max((l * c).abs()));
-        m.gap_scale = obstacle_scale
+    let x_scale = p.x_max;
+    let f_norm = p.rhs2.sqrt().max(f64::MIN_POSITIVE);
+    if problem.constraint.is_some() {
+        let r = row_measures;
+        m.gap_scale = r
+            .obstacle_scale
             .max(x_scale)
-            .max(contact_gap)
+            .max(r.contact_gap)
             .max(f64::MIN_POSITIVE);
-        let lambda_scale = norm_inf(lambda).max(f64::MIN_POSITIVE);
-        m.dual_min = f64::INFINITY;
-        for i in 0..lambda.len() {
-            let gap = c.mean_gap(cx, i);
-            m.penetration = m.penetration.max(-gap);
-            m.complementarity = m.complementarity.max((lambda[i] * gap).abs());
-            m.dual_min = m.dual_min.min(lambda[i]);
-            if lambda[i] > 0.0 {
-                m.active += 1;
-            }
-        }
-        if lambda.is_empty() {
-            m.dual_min = 0.0;
-        }
+        let lambda_scale = r.lambda_max.max(f64::MIN_POSITIVE);
+        (m.penetration, m.complementarity, m.active) = (r.penetration, r.complementarity, r.active);
+        m.dual_min = match lambda.is_empty() {
+            true => 0.0,
+            false => r.dual_min,
+        };
         m.kkt = (m.penetration / m.gap_scale)
             .max((-m.dual_min).max(0.0) / lambda_scale)
             .max(m.complementarity / (lambda_scale * m.gap_scale));
     } else {
         m.gap_scale = x_scale;
     }
-    // A x − F − Cᵀλ, row by row (not stored): its primal rows' norm is
-    // stationarity, the equality rows' tangency.
-    let ct_lambda = products.ct_lambda.or(computed_ct.as_deref());
-    let residual_norm = |rows: std::ops::Range<usize>| {
-        rows.map(|i| {
+    // The equality rows' residual: tangency.
+    let tail = n_primal..ax.len().min(problem.rhs.len());
+    m.tangency = tail
+        .map(|i| {
             let r = ax[i] - problem.rhs[i];
             let r = match ct_lambda {
                 Some(ct) if i < ct.len() => r - ct[i],
@@ -166,13 +188,64 @@ pub fn kkt_measures_with(
             r * r
         })
         .sum::<f64>()
-        .sqrt()
-    };
-    m.stationarity = residual_norm(0..n_primal) / force_scale.max(f64::MIN_POSITIVE);
-    m.tangency = residual_norm(n_primal..ax.len().min(problem.rhs.len()));
-    let tangency_rel = m.tangency / (f_norm + norm2(x));
+        .sqrt();
+    m.stationarity = p.residual2.sqrt() / force_scale.max(f64::MIN_POSITIVE);
+    let x_norm = (p.x2 + x[n_primal..].iter().map(|v| v * v).sum::<f64>()).sqrt();
+    let tangency_rel = m.tangency / (f_norm + x_norm);
     m.kkt = m.kkt.max(m.stationarity).max(tangency_rel);
     m
+}
+
+/// The primal rows' part of the measures ([`kkt_measures_with`]) over a
+/// range of rows.
+#[derive(Default, Clone, Copy)]
+struct PrimalMeasures {
+    ax2: f64,
+    rhs2: f64,
+    ct2: f64,
+    x2: f64,
+    x_max: f64,
+    residual2: f64,
+}
+
+impl PrimalMeasures {
+    /// Two consecutive ranges' parts as one.
+    fn and(self, o: Self) -> Self {
+        PrimalMeasures {
+            ax2: self.ax2 + o.ax2,
+            rhs2: self.rhs2 + o.rhs2,
+            ct2: self.ct2 + o.ct2,
+            x2: self.x2 + o.x2,
+            x_max: self.x_max.max(o.x_max),
+            residual2: self.residual2 + o.residual2,
+        }
+    }
+}
+
+/// The constraint rows' part of the measures over a range of rows.
+#[derive(Default, Clone, Copy)]
+struct RowMeasures {
+    obstacle_scale: f64,
+    contact_gap: f64,
+    lambda_max: f64,
+    penetration: f64,
+    complementarity: f64,
+    dual_min: f64,
+    active: usize,
+}
+
+impl RowMeasures {
+    fn and(self, o: Self) -> Self {
+        RowMeasures {
+            obstacle_scale: self.obstacle_scale.max(o.obstacle_scale),
+            contact_gap: self.contact_gap.max(o.contact_gap),
+            lambda_max: self.lambda_max.max(o.lambda_max),
+            penetration: self.penetration.max(o.penetration),
+            complementarity: self.complementarity.max(o.complementarity),
+            dual_min: self.dual_min.min(o.dual_min),
+            active: self.active + o.active,
+        }
+    }
 }
 
 /// S̃_ii = (1/w_i) Σ_j C_ij² / |A_jj|: the diagonal of the mean-form dual

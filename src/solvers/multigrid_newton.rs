@@ -55,7 +55,7 @@ use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, P
 use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{beside, mat_vec, MatrixKind};
+use crate::linalg::{beside, cut, mat_vec, on_halves, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::{Arc, Mutex};
@@ -415,31 +415,50 @@ impl Condensed {
         self.d[j] / (self.beta[i] * self.beta[i])
     }
 
-    /// Each interior unknown clamped between the bounds u gives it.
-    fn clamp(&self, u: &[f64]) -> Clamped {
-        let s: Vec<f64> = (0..self.g.len()).map(|i| self.row_product(i, u)).collect();
+    /// Each interior unknown clamped between the bounds u gives it; in
+    /// halves on `threads` (`linalg::on_halves`: the same numbers on one).
+    fn clamp(&self, u: &[f64], threads: usize) -> Clamped {
+        let mut s = vec![0.0; self.g.len()];
+        let row_products = |offset: usize, part: &mut [f64]| {
+            for (k, sk) in part.iter_mut().enumerate() {
+                *sk = self.row_product(offset + k, u);
+            }
+        };
+        let half = cut(s.len());
+        on_halves(threads, &mut s, half, row_products, |_, _| ());
         let nb = self.interior.len();
         let (mut b, mut active) = (vec![0.0; nb], vec![NONE; nb]);
-        for j in 0..nb {
-            let (mut lo, mut lo_row) = (f64::NEG_INFINITY, NONE);
-            let (mut hi, mut hi_row) = (f64::INFINITY, NONE);
-            for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
-                let bound = (self.g[i] - s[i]) / self.beta[i];
-                if self.beta[i] > 0.0 && bound > lo {
-                    (lo, lo_row) = (bound, i);
-                } else if self.beta[i] < 0.0 && bound < hi {
-                    (hi, hi_row) = (bound, i);
+        let clamp_part = |offset: usize, b: &mut [f64], active: &mut [usize]| {
+            for (k, (bk, ak)) in b.iter_mut().zip(active.iter_mut()).enumerate() {
+                let j = offset + k;
+                let (mut lo, mut lo_row) = (f64::NEG_INFINITY, NONE);
+                let (mut hi, mut hi_row) = (f64::INFINITY, NONE);
+                for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
+                    let bound = (self.g[i] - s[i]) / self.beta[i];
+                    if self.beta[i] > 0.0 && bound > lo {
+                        (lo, lo_row) = (bound, i);
+                    } else if self.beta[i] < 0.0 && bound < hi {
+                        (hi, hi_row) = (bound, i);
+                    }
                 }
+                let free = self.f[j] / self.d[j];
+                (*bk, *ak) = if free < lo {
+                    (lo, lo_row)
+                } else if free > hi {
+                    (hi, hi_row)
+                } else {
+                    (free, NONE)
+                };
             }
-            let free = self.f[j] / self.d[j];
-            (b[j], active[j]) = if free < lo {
-                (lo, lo_row)
-            } else if free > hi {
-                (hi, hi_row)
-            } else {
-                (free, NONE)
-            };
-        }
+        };
+        let m = cut(nb);
+        let (b_first, b_second) = b.split_at_mut(m);
+        let (active_first, active_second) = active.split_at_mut(m);
+        beside(
+            if m == nb { 1 } else { threads },
+            || clamp_part(0, b_first, active_first),
+            || clamp_part(m, b_second, active_second),
+        );
         Clamped { s, b, active }
     }
 
@@ -970,7 +989,7 @@ fn solve_level(
     // ten without a 1 % better KKT measure is a tolerance the solves
     // cannot reach.
     let mut monitor = Monitor::new(STAGE, "KKT measure").with_stagnation_window(10);
-    let mut clamped = condensed.clamp(&u);
+    let mut clamped = condensed.clamp(&u, options.threads);
     let mut old_lambda = vec![0.0; condensed.g.len()];
     let (mut newton_steps, mut cg_iterations) = (0, 0);
     let (mut step_length, mut active_changes, mut cg_step) = (0.0, 0usize, 0usize);
@@ -995,7 +1014,7 @@ fn solve_level(
                 ct_lambda: Some(&ct_lambda),
                 compliance: Some(&compliance),
             },
-            1,
+            options.threads,
         );
         let dual_step = dual_step_norm(&lambda, &old_lambda, &constraint.weights, DualNorm::L2);
         builder.record(
@@ -1057,7 +1076,7 @@ fn solve_level(
         let mut t = 1.0;
         let (trial, next) = loop {
             let trial: Vec<f64> = u.iter().zip(&delta).map(|(a, d)| a + t * d).collect();
-            let next = condensed.clamp(&trial);
+            let next = condensed.clamp(&trial, options.threads);
             // On the same active set J is the quadratic whose Hessian CG
             // solved with: a CG step decreases it by ½ δᵀHδ > 0, and near the
             // solution that decrease lies below the round-off of J's change.
