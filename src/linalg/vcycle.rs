@@ -393,26 +393,31 @@ impl Multigrid {
     }
 
     /// Adds v to entry (i, j) of level l's operator, both in the level's
-    /// sweep numbering; false where (i, j) lies outside its pattern. Call
-    /// [`Multigrid::operators_changed`] before the next cycle.
+    /// sweep numbering (its diagonal kept in step); false where (i, j) lies
+    /// outside its pattern. Call [`Multigrid::operators_changed`] before
+    /// the next cycle.
     pub fn add_to_level(&mut self, l: usize, i: usize, j: usize, v: f64) -> bool {
-        let a = &mut self.levels[l].a;
+        let level = &mut self.levels[l];
+        let a = &mut level.a;
         let range = a.symbolic().col_range(j);
         let found = a.symbolic().row_idx()[range.clone()].binary_search(&(i as u32));
         match found {
             Ok(k) => {
                 a.val_mut()[range.start + k] += v;
+                if i == j {
+                    level.diagonal[i] += v;
+                }
                 true
             }
             Err(_) => false,
         }
     }
 
-    /// After [`Multigrid::add_to_level`]: every level's diagonal read again
-    /// (checked positive) and the coarsest level factorised anew.
+    /// After [`Multigrid::add_to_level`]: every level's diagonal checked
+    /// positive and the coarsest level factorised anew.
     pub fn operators_changed(&mut self) -> Result<()> {
-        for (l, level) in self.levels.iter_mut().enumerate() {
-            level.diagonal = positive_diagonal(l, &level.a)?;
+        for (l, level) in self.levels.iter().enumerate() {
+            check_positive(l, &level.diagonal)?;
         }
         self.coarsest = factor_coarsest(&self.levels[0].a, &self.options)?;
         Ok(())
@@ -656,13 +661,19 @@ fn renumbered<I: Index, J: Index>(
 /// that is not positive.
 fn positive_diagonal<I: Index>(l: usize, a: &SparseColMat<I, f64>) -> Result<Vec<f64>> {
     let diagonal = diagonal(a);
+    check_positive(l, &diagonal)?;
+    Ok(diagonal)
+}
+
+/// An error naming level l's first diagonal entry that is not positive.
+fn check_positive(l: usize, diagonal: &[f64]) -> Result<()> {
     match diagonal.iter().position(|&d| d.is_nan() || d <= 0.0) {
         Some(i) => Err(Error::numerical(
             STAGE,
             "diagonal",
             format!("level {l}: A[{i}, {i}] = {} is not positive", diagonal[i]),
         )),
-        None => Ok(diagonal),
+        None => Ok(()),
     }
 }
 
