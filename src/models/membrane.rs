@@ -388,11 +388,12 @@ impl<'m> MembraneSystem<'m> {
     /// The P1⊕B3 stiffness as the blocks it is: ∫_T ∇φ·∇b = ∇φ·∮_∂T b n = 0
     /// for a P1 function φ and the cubic bubble b of a straight triangle, so
     /// A = diag(K, D) with K the P1 stiffness (one-point rule: constant
-    /// gradients) and D_t = ∫_T |∇b_t|². Quadrature would give the coupling
-    /// as round-off; left out, A has less than half the entries. Bubbles
-    /// are numbered after the vertices and never fixed, so the free
-    /// unknowns are the free vertices, then every bubble.
-    fn p1_bubble_stiffness(&self, rule: &TriangleRule) -> (SparseColMat<usize, f64>, Vec<f64>) {
+    /// gradients) and D_t = ∫_T |∇b_t|² ([`MembraneSystem::bubble_diagonal`]).
+    /// Quadrature would give the coupling as round-off; left out, A has less
+    /// than half the entries. Bubbles are numbered after the vertices and
+    /// never fixed, so the free unknowns are the free vertices, then every
+    /// bubble. This is K on the free vertices, and its shift.
+    fn p1_stiffness(&self) -> (SparseColMat<usize, f64>, Vec<f64>) {
         let n_vertices = self.mesh.n_vertices();
         let p1 = Space::new(self.mesh, Element::P1);
         let vertices = DofNumbering {
@@ -402,7 +403,7 @@ impl<'m> MembraneSystem<'m> {
                 .take_while(|&d| d < n_vertices)
                 .collect(),
         };
-        let (k, mut shift) = assemble_bilinear_eliminated(
+        assemble_bilinear_eliminated(
             &p1,
             &p1,
             &TriangleRule::exact_for(0),
@@ -410,14 +411,30 @@ impl<'m> MembraneSystem<'m> {
             &vertices,
             &vertices,
             &self.boundary_values[..n_vertices],
-        );
+        )
+    }
+
+    /// D_t = ∫_T |∇b_t|² of every triangle's bubble.
+    fn bubble_diagonal(&self, rule: &TriangleRule) -> Vec<f64> {
         let bubble = self.u_space.element.n_local() - 1;
-        let d = element_diagonal(&self.u_space, rule, laplace, bubble);
-        let n_free_vertices = vertices.n_free();
+        element_diagonal(&self.u_space, rule, laplace, bubble)
+    }
+
+    /// A = diag(K, D) from the P1 stiffness on the free vertices and its
+    /// shift ([`MembraneSystem::p1_stiffness`]) and the bubbles' diagonal.
+    fn with_bubbles(
+        &self,
+        (k, mut shift): (SparseColMat<usize, f64>, Vec<f64>),
+        d: &[f64],
+    ) -> (SparseColMat<usize, f64>, Vec<f64>) {
+        let n_free_vertices = k.nrows();
         let n = n_free_vertices + d.len();
         debug_assert_eq!(n, self.numbering.n_free(), "free vertices, then bubbles");
         let (symbolic, mut values) = k.into_parts();
         let (_, _, mut col_ptr, _, mut rows) = symbolic.into_parts();
+        rows.reserve(d.len());
+        values.reserve(d.len());
+        col_ptr.reserve(d.len());
         for (t, &dt) in d.iter().enumerate() {
             rows.push(n_free_vertices + t);
             values.push(dt);
@@ -683,8 +700,9 @@ impl ModelSystem for MembraneSystem<'_> {
         // Nonzero boundary values are lifted: −K_free,fixed g_D on the right.
         let fixed_values = &self.boundary_values;
         let numbering = &self.numbering;
+        // P1⊕B3: K on one thread, the bubbles' D (and C) on the other.
         let stiffness = || match self.pair {
-            ElementPair::P1bP0 => self.p1_bubble_stiffness(&rule),
+            ElementPair::P1bP0 => self.p1_stiffness(),
             _ => assemble_bilinear_eliminated(
                 u,
                 u,
@@ -728,7 +746,16 @@ impl ModelSystem for MembraneSystem<'_> {
                 weights,
             })
         };
-        let ((k, shift), constraint) = beside(self.threads, stiffness, constraint);
+        let bubbles = || match self.pair {
+            ElementPair::P1bP0 => Some(self.bubble_diagonal(&rule)),
+            _ => None,
+        };
+        let (stiffness, (bubbles, constraint)) =
+            beside(self.threads, stiffness, || (bubbles(), constraint()));
+        let (k, shift) = match bubbles {
+            Some(d) => self.with_bubbles(stiffness, &d),
+            None => stiffness,
+        };
         let f_full = match g.as_constant() {
             Some(g) => assemble_constant_linear(u, g),
             None => assemble_linear(u, &rule, |v, p| g.eval(p.x) * v.value),
