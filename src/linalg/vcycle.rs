@@ -393,24 +393,40 @@ impl Multigrid {
     }
 
     /// Adds v to entry (i, j) of level l's operator, both in the level's
-    /// sweep numbering (its diagonal kept in step); false where (i, j) lies
-    /// outside its pattern. Call [`Multigrid::operators_changed`] before
-    /// the next cycle.
-    pub fn add_to_level(&mut self, l: usize, i: usize, j: usize, v: f64) -> bool {
+    /// sweep numbering (its diagonal kept in step): the entry's position
+    /// among the level's stored entries, or None where (i, j) lies outside
+    /// its pattern. Call [`Multigrid::operators_changed`] before the next
+    /// cycle.
+    pub fn add_to_level(&mut self, l: usize, i: usize, j: usize, v: f64) -> Option<usize> {
         let level = &mut self.levels[l];
         let a = &mut level.a;
         let range = a.symbolic().col_range(j);
-        let found = a.symbolic().row_idx()[range.clone()].binary_search(&(i as u32));
-        match found {
-            Ok(k) => {
-                a.val_mut()[range.start + k] += v;
-                if i == j {
-                    level.diagonal[i] += v;
-                }
-                true
-            }
-            Err(_) => false,
+        let k = range.start
+            + a.symbolic().row_idx()[range]
+                .binary_search(&(i as u32))
+                .ok()?;
+        a.val_mut()[k] += v;
+        if i == j {
+            level.diagonal[i] += v;
         }
+        Some(k)
+    }
+
+    /// Level l's stored entries: (row, column) of each position, in the
+    /// level's sweep numbering, as `f(position, row, column)`.
+    pub fn for_each_entry(&self, l: usize, mut f: impl FnMut(usize, usize, usize)) {
+        let a = &self.levels[l].a;
+        let (col_ptr, rows) = (a.symbolic().col_ptr(), a.symbolic().row_idx());
+        for j in 0..a.ncols() {
+            for k in col_ptr[j] as usize..col_ptr[j + 1] as usize {
+                f(k, rows[k] as usize, j);
+            }
+        }
+    }
+
+    /// The number of stored entries of level l's operator.
+    pub fn level_entries(&self, l: usize) -> usize {
+        self.levels[l].a.val().len()
     }
 
     /// After [`Multigrid::add_to_level`]: every level's diagonal checked

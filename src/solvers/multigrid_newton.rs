@@ -652,23 +652,69 @@ impl HessianCycle {
             })
             .collect();
         changed.sort_unstable();
+        if changed.is_empty() {
+            return Ok(());
+        }
+        // The two finest levels take each term w r rᵀ (r = c_i restricted
+        // to the level); the third, their sum Δ, whose position-wise values
+        // it keeps; each coarser level then takes Pᵀ Δ P of the level above,
+        // entry by entry: the terms of a contact zone share a coarse level's
+        // entries, so a coarse level takes far fewer additions than terms.
+        let finest = self.mg.n_levels() - 1;
+        let summed = finest.checked_sub(2);
+        let mut delta = summed.map_or_else(Vec::new, |l| vec![0.0; self.mg.level_entries(l)]);
         for &(_, j) in &changed {
             let (old, new) = (self.applied[j], active[j]);
             for (row, sign) in [(old, -1.0), (new, 1.0)] {
                 if row != NONE {
-                    self.add_term(condensed, row, sign * condensed.term_weight(j, row))?;
+                    let w = sign * condensed.term_weight(j, row);
+                    self.add_term(condensed, row, w, &mut delta)?;
                 }
             }
             self.applied[j] = new;
         }
-        if !changed.is_empty() {
-            self.mg.operators_changed()?;
+        for l in (1..=summed.unwrap_or(0)).rev() {
+            let mut entries = Vec::new();
+            self.mg.for_each_entry(l, |k, a, b| {
+                if delta[k] != 0.0 {
+                    entries.push((a, b, delta[k]));
+                }
+            });
+            let mut coarser = vec![0.0; self.mg.level_entries(l - 1)];
+            let pt = &self.restrictions[l - 1];
+            let column = |a: usize| {
+                let range = pt.symbolic().col_range(a);
+                pt.symbolic().row_idx()[range.clone()]
+                    .iter()
+                    .copied()
+                    .zip(pt.val()[range].iter().copied())
+            };
+            for (a, b, v) in entries {
+                for (ca, pa) in column(a) {
+                    for (cb, pb) in column(b) {
+                        let k = self
+                            .mg
+                            .add_to_level(l - 1, ca, cb, v * pa * pb)
+                            .ok_or_else(|| outside_pattern("the contact terms", l - 1, ca, cb))?;
+                        coarser[k] += v * pa * pb;
+                    }
+                }
+            }
+            delta = coarser;
         }
-        Ok(())
+        self.mg.operators_changed()
     }
 
-    /// Adds w r rᵀ to every level, r the restriction of c_i to it.
-    fn add_term(&mut self, condensed: &Condensed, i: usize, w: f64) -> Result<()> {
+    /// Adds w r rᵀ to the two finest levels and to the third, r the
+    /// restriction of c_i to each, and to `delta` at the third level's
+    /// positions ([`HessianCycle::follow`]); with fewer levels, to each.
+    fn add_term(
+        &mut self,
+        condensed: &Condensed,
+        i: usize,
+        w: f64,
+        delta: &mut [f64],
+    ) -> Result<()> {
         let mut r: Vec<(usize, f64)> = (condensed.row_ptr[i]..condensed.row_ptr[i + 1])
             .map(|k| {
                 (
@@ -677,19 +723,20 @@ impl HessianCycle {
                 )
             })
             .collect();
-        for l in (0..self.mg.n_levels()).rev() {
+        let finest = self.mg.n_levels() - 1;
+        let summed = finest.checked_sub(2);
+        for l in (summed.unwrap_or(0)..=finest).rev() {
             for &(a, va) in &r {
                 for &(b, vb) in &r {
-                    if !self.mg.add_to_level(l, a, b, w * va * vb) {
-                        return Err(Error::numerical(
-                            STAGE,
-                            "pattern",
-                            format!("the term of constraint row {i} falls outside level {l}'s operator pattern at ({a}, {b}): the levels are not nested P1 meshes"),
-                        ));
+                    let k = self.mg.add_to_level(l, a, b, w * va * vb).ok_or_else(|| {
+                        outside_pattern(&format!("the term of constraint row {i}"), l, a, b)
+                    })?;
+                    if Some(l) == summed {
+                        delta[k] += w * va * vb;
                     }
                 }
             }
-            if l == 0 {
+            if Some(l) == summed || l == 0 {
                 break;
             }
             let pt = &self.restrictions[l - 1];
@@ -720,6 +767,15 @@ impl HessianCycle {
         self.mg.from_swept(&x, &mut delta);
         (delta, report.iterations)
     }
+}
+
+/// The error of a contact term outside a level's operator pattern.
+fn outside_pattern(what: &str, l: usize, a: usize, b: usize) -> Error {
+    Error::numerical(
+        STAGE,
+        "pattern",
+        format!("{what} falls outside level {l}'s operator pattern at ({a}, {b}): the levels are not nested P1 meshes"),
+    )
 }
 
 /// What one level's Newton iteration did.
