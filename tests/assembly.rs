@@ -167,3 +167,56 @@ fn p0_mass_and_constant_load_from_basis_means_equal_quadrature() {
         }
     }
 }
+
+/// The P1 stiffness built from the mesh's edges equals the general element
+/// loop's (the Laplacian at a one-point rule, exact for P1) on a mesh of
+/// triangles of different shapes, with the boundary vertices eliminated
+/// and their values shifted to the right: the same pattern, the values
+/// and the shift to round-off (1e-14 of the largest).
+#[test]
+fn p1_stiffness_from_edges_equals_the_element_loop() {
+    use obstacle_fem::assembly::{
+        assemble_bilinear_eliminated, laplace, p1_stiffness, DofNumbering,
+    };
+    use obstacle_fem::quadrature::TriangleRule;
+    use obstacle_fem::space::{Element, Space};
+    let mut mesh = common::square_mesh(7);
+    for (k, v) in mesh.vertices.iter_mut().enumerate() {
+        if v[0].abs() < 1.0 && v[1].abs() < 1.0 {
+            v[0] += 0.05 * ((k * 7 % 5) as f64 - 2.0) / 2.0;
+            v[1] += 0.05 * ((k * 3 % 5) as f64 - 2.0) / 2.0;
+        }
+    }
+    let u = Space::new(&mesh, Element::P1);
+    for numbering in [
+        DofNumbering::from_fixed_mask(&u.boundary_dof_mask(None)),
+        DofNumbering::all_free(u.n_dofs()),
+    ] {
+        let fixed: Vec<f64> = (0..u.n_dofs()).map(|d| 1.0 + (d % 7) as f64).collect();
+        let (k, shift) = p1_stiffness(&mesh, &numbering, &fixed);
+        let (q, q_shift) = assemble_bilinear_eliminated(
+            &u,
+            &u,
+            &TriangleRule::exact_for(0),
+            laplace,
+            &numbering,
+            &numbering,
+            &fixed,
+        );
+        assert_eq!(k.symbolic().col_ptr(), q.symbolic().col_ptr());
+        assert_eq!(k.symbolic().row_idx(), q.symbolic().row_idx());
+        for (what, ours, theirs) in [
+            ("K", k.val(), q.val()),
+            ("the boundary values' shift", &shift[..], &q_shift[..]),
+        ] {
+            let scale = theirs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0 || numbering.n_free() == u.n_dofs(), "{what}");
+            for (a, b) in ours.iter().zip(theirs) {
+                assert!(
+                    (a - b).abs() <= 1e-14 * scale.max(f64::MIN_POSITIVE),
+                    "{what}: {a:e} against {b:e}"
+                );
+            }
+        }
+    }
+}

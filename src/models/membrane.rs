@@ -388,14 +388,14 @@ impl<'m> MembraneSystem<'m> {
     /// The P1⊕B3 stiffness as the blocks it is: ∫_T ∇φ·∇b = ∇φ·∮_∂T b n = 0
     /// for a P1 function φ and the cubic bubble b of a straight triangle, so
     /// A = diag(K, D) with K the P1 stiffness (one-point rule: constant
-    /// gradients) and D_t = ∫_T |∇b_t|² ([`MembraneSystem::bubble_diagonal`]).
+    /// gradients: `assembly::p1_stiffness`) and D_t = ∫_T |∇b_t|²
+    /// ([`MembraneSystem::bubble_diagonal`]).
     /// Quadrature would give the coupling as round-off; left out, A has less
     /// than half the entries. Bubbles are numbered after the vertices and
     /// never fixed, so the free unknowns are the free vertices, then every
     /// bubble. This is K on the free vertices, and its shift.
     fn p1_stiffness(&self) -> (SparseColMat<usize, f64>, Vec<f64>) {
         let n_vertices = self.mesh.n_vertices();
-        let p1 = Space::new(self.mesh, Element::P1);
         let vertices = DofNumbering {
             free_index: self.numbering.free_index[..n_vertices].to_vec(),
             free_dofs: (self.numbering.free_dofs.iter())
@@ -403,15 +403,7 @@ impl<'m> MembraneSystem<'m> {
                 .take_while(|&d| d < n_vertices)
                 .collect(),
         };
-        assemble_bilinear_eliminated(
-            &p1,
-            &p1,
-            &TriangleRule::exact_for(0),
-            laplace,
-            &vertices,
-            &vertices,
-            &self.boundary_values[..n_vertices],
-        )
+        crate::assembly::p1_stiffness(self.mesh, &vertices, &self.boundary_values[..n_vertices])
     }
 
     /// D_t = ∫_T |∇b_t|² of every triangle's bubble.

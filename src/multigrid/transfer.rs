@@ -19,9 +19,7 @@
 //! entry that links a free coarse vertex to a fixed fine one is lost, and
 //! the Galerkin identity holds on the free unknowns.
 
-use crate::assembly::{
-    assemble_bilinear_eliminated, assemble_linear, laplace, DofNumbering, Triplets,
-};
+use crate::assembly::{assemble_linear, DofNumbering, Triplets};
 use crate::error::{Error, Result};
 use crate::mesh::{Hierarchy, Mesh};
 use crate::quadrature::TriangleRule;
@@ -140,10 +138,8 @@ impl P1Levels {
 /// The P1 stiffness matrix ∫ ∇u·∇v of `mesh` on the free vertices of
 /// `numbering` (Dirichlet vertices eliminated, as the membrane's K), whole.
 pub fn p1_stiffness(mesh: &Mesh, numbering: &DofNumbering) -> SparseColMat<usize, f64> {
-    let space = Space::new(mesh, Element::P1);
-    let rule = TriangleRule::exact_for(2);
     let fixed = vec![0.0; numbering.n_total()];
-    assemble_bilinear_eliminated(&space, &space, &rule, laplace, numbering, numbering, &fixed).0
+    crate::assembly::p1_stiffness(mesh, numbering, &fixed).0
 }
 
 /// The P1 load vector ∫ f v of a constant f on the free vertices.
