@@ -193,7 +193,7 @@ fn p1_stiffness_from_edges_equals_the_element_loop() {
         DofNumbering::all_free(u.n_dofs()),
     ] {
         let fixed: Vec<f64> = (0..u.n_dofs()).map(|d| 1.0 + (d % 7) as f64).collect();
-        let (k, shift) = p1_stiffness(&mesh, &numbering, &fixed);
+        let (k, shift) = p1_stiffness(&mesh, &numbering, &fixed, 0);
         let (q, q_shift) = assemble_bilinear_eliminated(
             &u,
             &u,

@@ -403,7 +403,14 @@ impl<'m> MembraneSystem<'m> {
                 .take_while(|&d| d < n_vertices)
                 .collect(),
         };
-        crate::assembly::p1_stiffness(self.mesh, &vertices, &self.boundary_values[..n_vertices])
+        // Room for the bubbles' diagonal ([`MembraneSystem::with_bubbles`]).
+        let bubbles = self.mesh.n_triangles();
+        crate::assembly::p1_stiffness(
+            self.mesh,
+            &vertices,
+            &self.boundary_values[..n_vertices],
+            bubbles,
+        )
     }
 
     /// D_t = ∫_T |∇b_t|² of every triangle's bubble.
@@ -424,9 +431,9 @@ impl<'m> MembraneSystem<'m> {
         debug_assert_eq!(n, self.numbering.n_free(), "free vertices, then bubbles");
         let (symbolic, mut values) = k.into_parts();
         let (_, _, mut col_ptr, _, mut rows) = symbolic.into_parts();
-        rows.reserve(d.len());
-        values.reserve(d.len());
-        col_ptr.reserve(d.len());
+        rows.reserve_exact(d.len());
+        values.reserve_exact(d.len());
+        col_ptr.reserve_exact(d.len());
         for (t, &dt) in d.iter().enumerate() {
             rows.push(n_free_vertices + t);
             values.push(dt);

@@ -139,7 +139,7 @@ impl P1Levels {
 /// `numbering` (Dirichlet vertices eliminated, as the membrane's K), whole.
 pub fn p1_stiffness(mesh: &Mesh, numbering: &DofNumbering) -> SparseColMat<usize, f64> {
     let fixed = vec![0.0; numbering.n_total()];
-    crate::assembly::p1_stiffness(mesh, numbering, &fixed).0
+    crate::assembly::p1_stiffness(mesh, numbering, &fixed, 0).0
 }
 
 /// The P1 load vector ∫ f v of a constant f on the free vertices.
