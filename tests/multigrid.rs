@@ -386,10 +386,10 @@ fn vcycle_and_pcg_converge_independently_of_the_level() {
 /// A level of 2¹⁶ unknowns or more is swept in two halves of its sweep
 /// order, the rows coupling across after them (`SweptLevel`): the same
 /// Gauss–Seidel on one thread or two, bit for bit, and it contracts as the
-/// undivided sweeps of the smaller levels do (measured at 513²: symmetric
-/// Gauss–Seidel 0.137 per V(1,1)-cycle (the undivided 0.128), Gauss–Seidel
-/// 0.259, 9 PCG iterations to 1e-10; the round-off floor
-/// of the relative residual is 3e-12 there).
+/// undivided sweeps of the smaller levels do (measured at 513², eight
+/// levels: symmetric Gauss–Seidel 0.137 per V(1,1)-cycle, Gauss–Seidel
+/// 0.259, 9 PCG iterations to 1e-10; the round-off floor of the relative
+/// residual is 3e-12 there).
 #[test]
 fn large_levels_sweep_in_halves_with_the_same_numbers_on_two_threads() {
     let (prolongations, a, b) = square_poisson(8);

@@ -54,9 +54,9 @@ impl ModelKind for Membrane {
     }
 
     /// No factorisation: the ball at 513², 1025² and 2049² (1.3M, 5.2M and
-    /// 21M unknowns; `make peers-bench`) peaks at 324, 314 and 310 bytes per
-    /// unknown (405 MB, 1569 MB, 6212 MB); 400 keeps the estimate above the
-    /// peak, within 1.29× of it.
+    /// 21M unknowns; `make peers-bench`) peaks at 324, 311 and 308 bytes per
+    /// unknown (405, 1554 and 6169 MiB); 400 keeps the estimate above the
+    /// peak, within 1.30× of it.
     fn multigrid_bytes_per_unknown(&self) -> f64 {
         400.0
     }
