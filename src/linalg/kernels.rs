@@ -73,6 +73,22 @@ pub(crate) fn on_halves<T: Send, R: Send>(
     combine(a, b)
 }
 
+/// `out[i] = value(i)` for every i, in the halves of `out` ([`cut`]) on
+/// `threads`.
+pub(crate) fn each_in_halves<T: Send>(
+    threads: usize,
+    out: &mut [T],
+    value: impl Fn(usize) -> T + Sync,
+) {
+    let m = cut(out.len());
+    let part = |offset: usize, part: &mut [T]| {
+        for (k, o) in part.iter_mut().enumerate() {
+            *o = value(offset + k);
+        }
+    };
+    on_halves(threads, out, m, part, |_, _| ());
+}
+
 /// `part` over [0, m) and [m, n) (m = [`cut`]), the two results combined
 /// in that order.
 pub(crate) fn over_halves<R: Send>(

@@ -4,7 +4,7 @@
 //! the vector kernels it shares with the V-cycle.
 //! Their loops run in halves on two threads (`kernels::cut`).
 
-use super::kernels::{beside, cut, on_halves, sum_halves};
+use super::kernels::{beside, cut, each_in_halves, on_halves, sum_halves};
 use faer::sparse::SparseColMat;
 use faer::Index;
 
@@ -127,13 +127,7 @@ pub(crate) fn residual<I: Index>(
     r: &mut [f64],
     threads: usize,
 ) {
-    let m = cut(r.len());
-    let rows = |offset: usize, r: &mut [f64]| {
-        for (k, rk) in r.iter_mut().enumerate() {
-            *rk = b[offset + k] - row_dot(a, offset + k, x);
-        }
-    };
-    on_halves(threads, r, m, rows, |_, _| ());
+    each_in_halves(threads, r, |i| b[i] - row_dot(a, i, x));
 }
 
 /// q = A p for a symmetric A stored whole (as [`residual`]).
@@ -143,13 +137,7 @@ pub(crate) fn product<I: Index>(
     q: &mut [f64],
     threads: usize,
 ) {
-    let m = cut(q.len());
-    let rows = |offset: usize, q: &mut [f64]| {
-        for (k, qk) in q.iter_mut().enumerate() {
-            *qk = row_dot(a, offset + k, p);
-        }
-    };
-    on_halves(threads, q, m, rows, |_, _| ());
+    each_in_halves(threads, q, |i| row_dot(a, i, p));
 }
 
 /// Row i of a symmetric A stored whole (its column i) times x.

@@ -6,7 +6,7 @@
 //! The matrices are stored whole (both triangles) in compressed columns:
 //! Gauss–Seidel reads row i of a symmetric A as its column i.
 
-use super::kernels::{cut, on_halves};
+use super::kernels::{cut, each_in_halves, on_halves};
 use super::pcg::{norm2, pcg, product, residual, CgReport};
 use super::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::error::{Error, Result};
@@ -733,16 +733,11 @@ fn diagonal<I: Index>(a: &SparseColMat<I, f64>) -> Vec<f64> {
 fn gather(m: &SparseColMat<usize, f64>, v: &[f64], threads: usize) -> Vec<f64> {
     let (col_ptr, rows, values) = (m.symbolic().col_ptr(), m.symbolic().row_idx(), m.val());
     let mut out = vec![0.0; m.ncols()];
-    let columns = |offset: usize, part: &mut [f64]| {
-        for (k, o) in part.iter_mut().enumerate() {
-            let j = offset + k;
-            *o = (col_ptr[j]..col_ptr[j + 1])
-                .map(|k| values[k] * v[rows[k]])
-                .sum();
-        }
-    };
-    let half = cut(out.len());
-    on_halves(threads, &mut out, half, columns, |_, _| ());
+    each_in_halves(threads, &mut out, |j| {
+        (col_ptr[j]..col_ptr[j + 1])
+            .map(|k| values[k] * v[rows[k]])
+            .sum()
+    });
     out
 }
 

@@ -55,7 +55,7 @@ use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, P
 use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{beside, cut, mat_vec, on_halves, MatrixKind};
+use crate::linalg::{beside, cut, each_in_halves, mat_vec, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::{Arc, Mutex};
@@ -416,16 +416,10 @@ impl Condensed {
     }
 
     /// Each interior unknown clamped between the bounds u gives it; in
-    /// halves on `threads` (`linalg::on_halves`: the same numbers on one).
+    /// halves on `threads` (`linalg::cut`: the same numbers on one).
     fn clamp(&self, u: &[f64], threads: usize) -> Clamped {
         let mut s = vec![0.0; self.g.len()];
-        let row_products = |offset: usize, part: &mut [f64]| {
-            for (k, sk) in part.iter_mut().enumerate() {
-                *sk = self.row_product(offset + k, u);
-            }
-        };
-        let half = cut(s.len());
-        on_halves(threads, &mut s, half, row_products, |_, _| ());
+        each_in_halves(threads, &mut s, |i| self.row_product(i, u));
         let nb = self.interior.len();
         let (mut b, mut active) = (vec![0.0; nb], vec![NONE; nb]);
         let clamp_part = |offset: usize, b: &mut [f64], active: &mut [usize]| {
