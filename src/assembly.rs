@@ -629,7 +629,8 @@ pub fn p1_stiffness(
         })
         .collect();
     let diagonal: Vec<u32> = (0..n).map(|c| position(c, c)).collect();
-    let mut values = vec![0.0; rows.len()];
+    let mut values = Vec::with_capacity(nnz + reserve);
+    values.resize(nnz, 0.0);
     let mut shift = vec![0.0; n];
     for (t, (tri, edges)) in mesh.triangles.iter().zip(&mesh.triangle_edges).enumerate() {
         let p = tri.map(|v| mesh.vertices[v]);
