@@ -44,8 +44,8 @@ pub fn beside<A, B: Send>(
 /// Vectors of at least this many entries are worked on in two halves,
 /// [0, n/2) and [n/2, n) ([`cut`]): on two threads when the caller allows
 /// two, else one after the other. Sums add the two halves' sums, so the
-/// numbers are the same on one thread or two. At 2¹⁶ entries a half takes about 0.1 ms per pass, a
-/// second thread's start and join some 30 µs.
+/// numbers are the same on one thread or two. At 2¹⁶ entries a half takes
+/// about 0.1 ms per pass, a second thread's start and join some 30 µs.
 pub(crate) const HALVES_FROM: usize = 1 << 16;
 
 /// Where the loops over a vector of n entries cut it: n/2, or n (not cut)
@@ -71,6 +71,26 @@ pub(crate) fn on_halves<T: Send, R: Send>(
     let threads = if second.is_empty() { 1 } else { threads };
     let (a, b) = beside(threads, || work(0, first), || work(m, second));
     combine(a, b)
+}
+
+/// [`on_halves`] over two slices of one length, both cut at m.
+pub(crate) fn on_paired_halves<A: Send, B: Send, R: Send>(
+    threads: usize,
+    a: &mut [A],
+    b: &mut [B],
+    m: usize,
+    work: impl Fn(usize, &mut [A], &mut [B]) -> R + Sync,
+    combine: impl FnOnce(R, R) -> R,
+) -> R {
+    let (a_first, a_second) = a.split_at_mut(m);
+    let (b_first, b_second) = b.split_at_mut(m);
+    let threads = if a_second.is_empty() { 1 } else { threads };
+    let (first, second) = beside(
+        threads,
+        || work(0, a_first, b_first),
+        || work(m, a_second, b_second),
+    );
+    combine(first, second)
 }
 
 /// `out[i] = value(i)` for every i, in the halves of `out` ([`cut`]) on
@@ -343,11 +363,8 @@ pub(super) fn in_column_halves<R: Send>(
     let Some(split) = column_halves(col_ptr, threads) else {
         return work(0..n);
     };
-    std::thread::scope(|scope| {
-        let second = scope.spawn(|| work(split..n));
-        let first = work(0..split);
-        combine(first, second.join().expect("the second thread"))
-    })
+    let (first, second) = beside(threads, || work(0..split), || work(split..n));
+    combine(first, second)
 }
 
 /// Where [`in_column_halves`] splits the columns of `col_ptr` (the

@@ -35,7 +35,7 @@ pub use kernels::{
     beside, first_non_finite, into_lower_triangle, mat_t_vec, mat_vec, norm2, norm_inf, product,
     residual, retain_entries,
 };
-pub(crate) use kernels::{cut, each_in_halves, over_halves};
+pub(crate) use kernels::{cut, each_in_halves, on_paired_halves, over_halves};
 pub use linear_solver::{
     analyse, factor_once, Factors, LinearMethod, LinearOptions, LinearSolver, SolverCounts,
     SystemPattern,

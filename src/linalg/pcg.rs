@@ -4,7 +4,7 @@
 //! the vector kernels it shares with the V-cycle.
 //! Their loops run in halves on two threads (`kernels::cut`).
 
-use super::kernels::{beside, cut, each_in_halves, on_halves, sum_halves};
+use super::kernels::{cut, each_in_halves, on_halves, on_paired_halves, sum_halves};
 use faer::sparse::SparseColMat;
 use faer::Index;
 
@@ -63,8 +63,6 @@ pub fn pcg<I: Index>(
             }
             let alpha = rz / pq;
             // x += α p and r −= α q, half by half, with ‖r‖² of the new r.
-            let (x_first, x_second) = x.split_at_mut(m);
-            let (r_first, r_second) = r.split_at_mut(m);
             let step = |offset: usize, x: &mut [f64], r: &mut [f64]| {
                 let (p, q) = (&p[offset..], &q[offset..]);
                 let mut rr = 0.0;
@@ -75,12 +73,8 @@ pub fn pcg<I: Index>(
                 }
                 rr
             };
-            let (first, second) = beside(
-                if m == n { 1 } else { threads },
-                || step(0, x_first, r_first),
-                || step(m, x_second, r_second),
-            );
-            if (first + second).sqrt() <= target {
+            let rr = on_paired_halves(threads, x, &mut r, m, step, |a, b| a + b);
+            if rr.sqrt() <= target {
                 break;
             }
             precondition(&r, &mut z);

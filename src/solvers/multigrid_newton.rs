@@ -55,7 +55,7 @@ use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, P
 use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
-use crate::linalg::{beside, cut, each_in_halves, mat_vec, MatrixKind};
+use crate::linalg::{beside, cut, each_in_halves, mat_vec, on_paired_halves, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::{Arc, Mutex};
@@ -445,14 +445,7 @@ impl Condensed {
                 };
             }
         };
-        let m = cut(nb);
-        let (b_first, b_second) = b.split_at_mut(m);
-        let (active_first, active_second) = active.split_at_mut(m);
-        beside(
-            if m == nb { 1 } else { threads },
-            || clamp_part(0, b_first, active_first),
-            || clamp_part(m, b_second, active_second),
-        );
+        on_paired_halves(threads, &mut b, &mut active, cut(nb), clamp_part, |_, _| ());
         Clamped { s, b, active }
     }
 
@@ -676,16 +669,9 @@ impl HessianCycle {
             });
             let mut coarser = vec![0.0; self.mg.level_entries(l - 1)];
             let pt = &self.restrictions[l - 1];
-            let column = |a: usize| {
-                let range = pt.symbolic().col_range(a);
-                pt.symbolic().row_idx()[range.clone()]
-                    .iter()
-                    .copied()
-                    .zip(pt.val()[range].iter().copied())
-            };
             for (a, b, v) in entries {
-                for (ca, pa) in column(a) {
-                    for (cb, pb) in column(b) {
+                for (ca, pa) in restriction_of(pt, a) {
+                    for (cb, pb) in restriction_of(pt, b) {
                         let k = self
                             .mg
                             .add_to_level(l - 1, ca, cb, v * pa * pb)
@@ -736,11 +722,7 @@ impl HessianCycle {
             let pt = &self.restrictions[l - 1];
             let mut coarse: Vec<(usize, f64)> = Vec::with_capacity(2 * r.len());
             for &(a, va) in &r {
-                let range = pt.symbolic().col_range(a);
-                for (&j, &p) in pt.symbolic().row_idx()[range.clone()]
-                    .iter()
-                    .zip(&pt.val()[range])
-                {
+                for (j, p) in restriction_of(pt, a) {
                     match coarse.iter_mut().find(|e| e.0 == j) {
                         Some(e) => e.1 += va * p,
                         None => coarse.push((j, va * p)),
@@ -761,6 +743,19 @@ impl HessianCycle {
         self.mg.from_swept(&x, &mut delta);
         (delta, report.iterations)
     }
+}
+
+/// The coarser level's unknowns that unknown `a` restricts to through
+/// `pt` (Pᵀ in compressed columns), with their weights: column a of Pᵀ.
+fn restriction_of(
+    pt: &SparseColMat<usize, f64>,
+    a: usize,
+) -> impl Iterator<Item = (usize, f64)> + '_ {
+    let range = pt.symbolic().col_range(a);
+    pt.symbolic().row_idx()[range.clone()]
+        .iter()
+        .copied()
+        .zip(pt.val()[range].iter().copied())
 }
 
 /// The error of a contact term outside a level's operator pattern.
