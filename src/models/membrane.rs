@@ -166,8 +166,8 @@ pub struct MembraneSystem<'m> {
     pub boundary_values: Vec<f64>,
     /// Which effects the scene asked for (recorded in the result file).
     pub simulated: Vec<String>,
-    /// `solver.threads`: with 2 or more the constraint rows are assembled
-    /// beside the stiffness.
+    /// `solver.threads`: with 2 or more the constraint rows and the
+    /// bubbles' diagonal are assembled beside the stiffness.
     threads: usize,
 }
 
@@ -745,13 +745,14 @@ impl ModelSystem for MembraneSystem<'_> {
                 weights,
             })
         };
-        let bubbles = || match self.pair {
+        let bubble_diagonal = || match self.pair {
             ElementPair::P1bP0 => Some(self.bubble_diagonal(&rule)),
             _ => None,
         };
-        let (stiffness, (bubbles, constraint)) =
-            beside(self.threads, stiffness, || (bubbles(), constraint()));
-        let (k, shift) = match bubbles {
+        let (stiffness, (bubble_diagonal, constraint)) = beside(self.threads, stiffness, || {
+            (bubble_diagonal(), constraint())
+        });
+        let (k, shift) = match bubble_diagonal {
             Some(d) => self.with_bubbles(stiffness, &d),
             None => stiffness,
         };

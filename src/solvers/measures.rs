@@ -128,17 +128,18 @@ pub fn kkt_measures_with(
         row_measures = over_halves(threads, lambda.len(), rows, RowMeasures::and);
     }
     let ct_lambda = products.ct_lambda.or(computed_ct.as_deref());
+    // (Cᵀλ)_i, 0 past its rows or without a constraint.
+    let ct_at = |i: usize| match ct_lambda {
+        Some(ct) if i < ct.len() => ct[i],
+        _ => 0.0,
+    };
     // The primal rows in one pass, each sum in row order: ‖A x‖², ‖F‖²,
     // ‖Cᵀλ‖², ‖x‖², max |x_i|, and the residual A x − F − Cᵀλ (not stored),
     // whose norm is stationarity.
     let primal = |rows: Range<usize>| {
         let mut p = PrimalMeasures::default();
         for i in rows {
-            let (a, f, xi) = (ax[i], problem.rhs[i], x[i]);
-            let ct = match ct_lambda {
-                Some(ct) if i < ct.len() => ct[i],
-                _ => 0.0,
-            };
+            let (a, f, ct, xi) = (ax[i], problem.rhs[i], ct_at(i), x[i]);
             p.ax2 += a * a;
             p.rhs2 += f * f;
             p.ct2 += ct * ct;
@@ -179,14 +180,7 @@ pub fn kkt_measures_with(
     // The equality rows' residual: tangency.
     let tail = n_primal..ax.len().min(problem.rhs.len());
     m.tangency = tail
-        .map(|i| {
-            let r = ax[i] - problem.rhs[i];
-            let r = match ct_lambda {
-                Some(ct) if i < ct.len() => r - ct[i],
-                _ => r,
-            };
-            r * r
-        })
+        .map(|i| (ax[i] - problem.rhs[i] - ct_at(i)).powi(2))
         .sum::<f64>()
         .sqrt();
     m.stationarity = p.residual2.sqrt() / force_scale.max(f64::MIN_POSITIVE);
