@@ -967,7 +967,7 @@ pub struct DofNumbering {
 impl DofNumbering {
     pub fn from_fixed_mask(fixed: &[bool]) -> Self {
         let mut free_index = vec![None; fixed.len()];
-        let mut free_dofs = Vec::new();
+        let mut free_dofs = Vec::with_capacity(fixed.iter().filter(|&&f| !f).count());
         for (d, &f) in fixed.iter().enumerate() {
             if !f {
                 free_index[d] = Some(free_dofs.len());

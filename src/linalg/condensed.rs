@@ -41,6 +41,9 @@ impl InteriorGroups {
             indices.extend(g);
             offsets.push(indices.len());
         }
+        // Held through a whole solve: without the growth's spare room.
+        offsets.shrink_to_fit();
+        indices.shrink_to_fit();
         InteriorGroups { offsets, indices }
     }
 

@@ -11,7 +11,7 @@ use super::pcg::{norm2, pcg, product, residual, CgReport};
 use super::{factor_once, Factors, LinearOptions, MatrixKind, Solves, SystemPattern};
 use crate::error::{Error, Result};
 use faer::sparse::linalg::matmul::sparse_sparse_matmul;
-use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::sparse::{SparseColMat, SymbolicSparseColMat, SymbolicSparseColMatRef};
 use faer::{Index, Par};
 use std::ops::Range;
 
@@ -106,31 +106,141 @@ impl SweptLevel {
     /// positive.
     pub fn new(l: usize, a: &SparseColMat<usize, f64>, order: SweepOrder) -> Result<Self> {
         let diagonal = positive_diagonal(l, a)?;
-        let order = match order {
-            SweepOrder::Numbered => (0..a.nrows()).collect(),
-            SweepOrder::CuthillMcKee => cuthill_mckee(a),
-        };
-        let nnz = a.compute_nnz();
-        if u32::try_from(nnz).is_err() {
-            return Err(Error::numerical(
-                STAGE,
-                "size",
-                format!("level {l}: {nnz} entries, above the 32-bit indices of a level"),
-            ));
-        }
+        check_entries_fit(l, a.compute_nnz())?;
+        let order = sweep_order(order, a.symbolic());
         // Stored in sweep order: the sweeps then read x and A front by
         // front, not scattered over the hierarchy's numbering (twice as
         // fast a V-cycle at 1025²).
         let position = inverse(&order);
         let a = renumbered(a, &position, &position);
+        Ok(SweptLevel::in_order(a, &diagonal, order))
+    }
+
+    /// Level `l`'s symmetric operator of `n` unknowns given by its lower
+    /// triangle: `lower(visit)` calls `visit(i, j, a_ij)` once for each
+    /// entry with i ≥ j. As [`SweptLevel::new`], without the operator ever
+    /// held whole in its given numbering (at a fine level that copy would
+    /// be the largest array of the set-up): its pattern alone gives the
+    /// order, then the entries go straight to their places.
+    pub fn from_lower(
+        l: usize,
+        n: usize,
+        lower: impl Fn(&mut dyn FnMut(usize, usize, f64)),
+        order: SweepOrder,
+    ) -> Result<Self> {
+        let mut degree = vec![0u32; n];
+        let mut diagonal = vec![0.0; n];
+        lower(&mut |i, j, v| {
+            degree[j] += 1;
+            match i == j {
+                true => diagonal[j] = v,
+                false => degree[i] += 1,
+            }
+        });
+        check_positive(l, &diagonal)?;
+        let mut start = vec![0usize; n + 1];
+        for j in 0..n {
+            start[j + 1] = start[j] + degree[j] as usize;
+        }
+        check_entries_fit(l, start[n])?;
+        let order = match order {
+            SweepOrder::Numbered => (0..n).collect(),
+            SweepOrder::CuthillMcKee => {
+                let mut rows = vec![0u32; start[n]];
+                let mut next = start[..n].to_vec();
+                lower(&mut |i, j, _| {
+                    rows[next[j]] = i as u32;
+                    next[j] += 1;
+                    if i != j {
+                        rows[next[i]] = j as u32;
+                        next[i] += 1;
+                    }
+                });
+                drop(next);
+                (0..n).for_each(|j| rows[start[j]..start[j + 1]].sort_unstable());
+                let col_ptr = start.iter().map(|&p| p as u32).collect();
+                let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, rows);
+                sweep_order(order, pattern.as_ref())
+            }
+        };
+        // The columns in sweep order, then each column's entries.
+        let position = inverse(&order);
+        for (k, &j) in order.iter().enumerate() {
+            start[k + 1] = start[k] + degree[j] as usize;
+        }
+        drop(degree);
+        let mut rows = vec![0u32; start[n]];
+        let mut values = vec![0.0; start[n]];
+        let mut next = start[..n].to_vec();
+        let mut place = |column: usize, row: usize, v: f64| {
+            rows[next[column]] = row as u32;
+            values[next[column]] = v;
+            next[column] += 1;
+        };
+        lower(&mut |i, j, v| {
+            let (pi, pj) = (position[i], position[j]);
+            place(pj, pi, v);
+            if i != j {
+                place(pi, pj, v);
+            }
+        });
+        drop(next);
+        let mut column: Vec<(u32, f64)> = Vec::new();
+        for c in 0..n {
+            let range = start[c]..start[c + 1];
+            column.clear();
+            column.extend(
+                rows[range.clone()]
+                    .iter()
+                    .copied()
+                    .zip(&values[range.clone()])
+                    .map(|(r, &v)| (r, v)),
+            );
+            column.sort_unstable_by_key(|e| e.0);
+            for (k, (r, v)) in range.zip(&column) {
+                (rows[k], values[k]) = (*r, *v);
+            }
+        }
+        let start = start.into_iter().map(|p| p as u32).collect();
+        let a = SparseColMat::new(
+            SymbolicSparseColMat::new_checked(n, n, start, None, rows),
+            values,
+        );
+        Ok(SweptLevel::in_order(a, &diagonal, order))
+    }
+
+    /// The level of `a` (in sweep order) with `diagonal` (in the given
+    /// numbering) and `order`.
+    fn in_order(a: SparseColMat<u32, f64>, diagonal: &[f64], order: Vec<usize>) -> Self {
         let diagonal = order.iter().map(|&i| diagonal[i]).collect();
         let halves = Halves::of(&a);
-        Ok(SweptLevel(Level {
+        SweptLevel(Level {
             a,
             diagonal,
             order,
             halves,
-        }))
+        })
+    }
+}
+
+/// An error naming level l when its `nnz` entries do not fit the 32-bit
+/// indices of a level.
+fn check_entries_fit(l: usize, nnz: usize) -> Result<()> {
+    match u32::try_from(nnz) {
+        Ok(_) => Ok(()),
+        Err(_) => Err(Error::numerical(
+            STAGE,
+            "size",
+            format!("level {l}: {nnz} entries, above the 32-bit indices of a level"),
+        )),
+    }
+}
+
+/// The order `order` of the unknowns of a symmetric pattern (stored whole).
+fn sweep_order<I: Index>(order: SweepOrder, pattern: SymbolicSparseColMatRef<'_, I>) -> Vec<usize> {
+    match order {
+        SweepOrder::Numbered => (0..pattern.nrows()).collect(),
+        SweepOrder::CuthillMcKee => cuthill_mckee(pattern),
     }
 }
 
@@ -598,9 +708,9 @@ fn smooth(
 
 /// A Cuthill–McKee order of a's graph, every connected component from a
 /// vertex of least degree.
-fn cuthill_mckee(a: &SparseColMat<usize, f64>) -> Vec<usize> {
+fn cuthill_mckee<I: Index>(a: SymbolicSparseColMatRef<'_, I>) -> Vec<usize> {
     let n = a.nrows();
-    let degree = |j: usize| a.symbolic().row_idx_of_col(j).len();
+    let degree = |j: usize| a.row_idx_of_col(j).len();
     let mut by_degree: Vec<usize> = (0..n).collect();
     by_degree.sort_by_key(|&j| degree(j));
     let mut seen = vec![false; n];
@@ -617,7 +727,7 @@ fn cuthill_mckee(a: &SparseColMat<usize, f64>) -> Vec<usize> {
             let j = order[head];
             head += 1;
             neighbours.clear();
-            neighbours.extend(a.symbolic().row_idx_of_col(j).filter(|&i| !seen[i]));
+            neighbours.extend(a.row_idx_of_col(j).filter(|&i| !seen[i]));
             neighbours.sort_by_key(|&i| degree(i));
             for &i in &neighbours {
                 seen[i] = true;

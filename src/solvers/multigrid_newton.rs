@@ -57,7 +57,7 @@ use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{beside, cut, each_in_halves, mat_vec, on_paired_halves, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
-use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::sparse::SparseColMat;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -151,26 +151,28 @@ pub struct MultigridNewtonOptions {
     pub threads: usize,
 }
 
-/// A problem condensed to its skeleton (module docs).
-struct Condensed {
+/// A problem condensed to its skeleton (module docs). Its indices are 32
+/// bits wide (checked): held through the solve beside the problem, these
+/// arrays are a sixth of the finest level's memory.
+struct Condensed<'p> {
     /// The problem's unknown of skeleton unknown k.
-    skeleton: Vec<usize>,
+    skeleton: Vec<u32>,
     /// F on the skeleton.
     load: Vec<f64>,
     /// Per interior unknown: its index in the problem, d = A_bb, f = F_b.
-    interior: Vec<usize>,
+    interior: Vec<u32>,
     d: Vec<f64>,
     f: Vec<f64>,
-    /// Per row: β_i, g_i and c_i (compressed rows on the skeleton).
+    /// Per row: β_i, g_i (the problem's) and c_i (compressed rows on the
+    /// skeleton).
     beta: Vec<f64>,
-    g: Vec<f64>,
-    row_ptr: Vec<usize>,
-    /// Skeleton indices in 32 bits: c is the largest array a level holds.
+    g: &'p [f64],
+    row_ptr: Vec<u32>,
     row_cols: Vec<u32>,
     row_vals: Vec<f64>,
     /// Per interior unknown: its rows (compressed).
-    rows_ptr: Vec<usize>,
-    rows: Vec<usize>,
+    rows_ptr: Vec<u32>,
+    rows: Vec<u32>,
 }
 
 /// A skeleton iterate's interior values and active rows.
@@ -182,12 +184,13 @@ struct Clamped {
     active: Vec<usize>,
 }
 
-impl Condensed {
+impl<'p> Condensed<'p> {
     /// The condensation of `problem`, or an error naming what does not fit:
     /// equality multipliers, an interior group of more than one unknown, an
     /// interior unknown coupled to another, a row without (or with two)
-    /// interior unknowns. With it K, the skeleton block of A (both triangles).
-    fn of(problem: &ContactProblem) -> Result<(Self, SparseColMat<usize, f64>)> {
+    /// interior unknowns. With it each unknown's skeleton index (NONE for
+    /// the interior ones).
+    fn of(problem: &'p ContactProblem) -> Result<(Self, Vec<usize>)> {
         let refuse = |reason: String| {
             Error::numerical(
                 STAGE,
@@ -206,6 +209,14 @@ impl Condensed {
             return Err(refuse(format!("A is {}", problem.kind.describe())));
         }
         let n = problem.n();
+        let (m, c_entries) = (c.obstacle.len(), c.matrix.compute_nnz());
+        if u32::try_from(n.max(m).max(c_entries)).is_err() {
+            return Err(Error::numerical(
+                STAGE,
+                "size",
+                format!("{n} unknowns, {m} rows and {c_entries} entries of C: the condensed problem indexes them in 32 bits"),
+            ));
+        }
         let groups = problem
             .interior
             .as_ref()
@@ -258,30 +269,18 @@ impl Condensed {
             )));
         }
         let d: Vec<f64> = interior.iter().map(|&i| diagonal[i]).collect();
-        let ns = skeleton.len();
-        if u32::try_from(ns).is_err() {
-            return Err(Error::numerical(
-                STAGE,
-                "size",
-                format!("{ns} skeleton unknowns: the condensed rows index them in 32 bits"),
-            ));
-        }
-        let mut col_ptr = vec![0usize; ns + 1];
         for j in 0..n {
             for (&i, &v) in lower(j) {
                 let (si, sj) = (skeleton_of[i], skeleton_of[j]);
-                if si != NONE && sj != NONE {
-                    col_ptr[sj + 1] += 1;
-                    if si != sj {
-                        col_ptr[si + 1] += 1;
-                    }
-                } else if si == NONE && sj == NONE {
+                if si == NONE && sj == NONE {
                     if i != j && v != 0.0 {
                         return Err(refuse(format!(
                             "the interior unknowns {i} and {j} are coupled (A = {v:e})"
                         )));
                     }
-                } else if v.abs() > 1e-10 * (diagonal[i] * diagonal[j]).abs().sqrt() {
+                } else if (si == NONE || sj == NONE)
+                    && v.abs() > 1e-10 * (diagonal[i] * diagonal[j]).abs().sqrt()
+                {
                     let (interior_unknown, other) = if si == NONE { (i, j) } else { (j, i) };
                     return Err(refuse(format!(
                         "the interior unknown {interior_unknown} couples to the unknown {other} (A = {v:e})"
@@ -289,33 +288,10 @@ impl Condensed {
                 }
             }
         }
-        for c in 0..ns {
-            col_ptr[c + 1] += col_ptr[c];
-        }
-        let mut next = col_ptr[..ns].to_vec();
-        let mut rows = vec![0usize; col_ptr[ns]];
-        let mut values = vec![0.0; col_ptr[ns]];
-        for j in 0..n {
-            for (&i, &v) in lower(j) {
-                let (si, sj) = (skeleton_of[i], skeleton_of[j]);
-                if si != NONE && sj != NONE {
-                    (rows[next[sj]], values[next[sj]]) = (si, v);
-                    next[sj] += 1;
-                    if si != sj {
-                        (rows[next[si]], values[next[si]]) = (sj, v);
-                        next[si] += 1;
-                    }
-                }
-            }
-        }
-        drop(next);
-        let symbolic = SymbolicSparseColMat::new_checked(ns, ns, col_ptr, None, rows);
-        let k = SparseColMat::new(symbolic, values);
         // C row by row: its interior unknown and β, and c on the skeleton.
-        let m = c.obstacle.len();
         let mut row_interior = vec![NONE; m];
         let mut beta = vec![0.0; m];
-        let mut row_ptr = vec![0usize; m + 1];
+        let mut row_ptr = vec![0u32; m + 1];
         let cm = &c.matrix;
         for j in 0..n {
             let range = cm.symbolic().col_range(j);
@@ -348,9 +324,9 @@ impl Condensed {
         for i in 0..m {
             row_ptr[i + 1] += row_ptr[i];
         }
-        let mut next = row_ptr.clone();
-        let mut row_cols = vec![0u32; row_ptr[m]];
-        let mut row_vals = vec![0.0; row_ptr[m]];
+        let mut next: Vec<usize> = row_ptr.iter().map(|&p| p as usize).collect();
+        let mut row_cols = vec![0u32; row_ptr[m] as usize];
+        let mut row_vals = vec![0.0; row_ptr[m] as usize];
         for j in 0..n {
             if interior_of[j] != NONE {
                 continue;
@@ -368,7 +344,7 @@ impl Condensed {
             }
         }
         let nb = interior.len();
-        let mut rows_ptr = vec![0usize; nb + 1];
+        let mut rows_ptr = vec![0u32; nb + 1];
         for &b in &row_interior {
             rows_ptr[b + 1] += 1;
         }
@@ -376,35 +352,46 @@ impl Condensed {
             rows_ptr[b + 1] += rows_ptr[b];
         }
         let mut next = rows_ptr.clone();
-        let mut rows = vec![0usize; m];
+        let mut rows = vec![0u32; m];
         for (i, &b) in row_interior.iter().enumerate() {
-            rows[next[b]] = i;
+            rows[next[b] as usize] = i as u32;
             next[b] += 1;
         }
         let condensed = Condensed {
             load: skeleton.iter().map(|&i| problem.rhs[i]).collect(),
             f: interior.iter().map(|&i| problem.rhs[i]).collect(),
-            skeleton,
-            interior,
+            skeleton: skeleton.into_iter().map(|i| i as u32).collect(),
+            interior: interior.into_iter().map(|i| i as u32).collect(),
             d,
             beta,
-            g: c.obstacle.clone(),
+            g: &c.obstacle,
             row_ptr,
             row_cols,
             row_vals,
             rows_ptr,
             rows,
         };
-        Ok((condensed, k))
+        Ok((condensed, skeleton_of))
     }
 
     fn n_skeleton(&self) -> usize {
         self.skeleton.len()
     }
 
+    /// The entries of row i in `row_cols` and `row_vals`.
+    fn row_range(&self, i: usize) -> std::ops::Range<usize> {
+        self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize
+    }
+
+    /// The rows of interior unknown j.
+    fn rows_of(&self, j: usize) -> impl Iterator<Item = usize> + '_ {
+        let range = self.rows_ptr[j] as usize..self.rows_ptr[j + 1] as usize;
+        self.rows[range].iter().map(|&i| i as usize)
+    }
+
     /// c_iᵀ u.
     fn row_product(&self, i: usize, u: &[f64]) -> f64 {
-        (self.row_ptr[i]..self.row_ptr[i + 1])
+        self.row_range(i)
             .map(|k| self.row_vals[k] * u[self.row_cols[k] as usize])
             .sum()
     }
@@ -427,7 +414,7 @@ impl Condensed {
                 let j = offset + k;
                 let (mut lo, mut lo_row) = (f64::NEG_INFINITY, NONE);
                 let (mut hi, mut hi_row) = (f64::INFINITY, NONE);
-                for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
+                for i in self.rows_of(j) {
                     let bound = (self.g[i] - s[i]) / self.beta[i];
                     if self.beta[i] > 0.0 && bound > lo {
                         (lo, lo_row) = (bound, i);
@@ -490,16 +477,16 @@ impl Condensed {
         let mut cx = clamped.s.clone();
         let mut gradient = vec![0.0; u.len()];
         for (k, &i) in self.skeleton.iter().enumerate() {
-            (x[i], ax[i]) = (u[k], ku[k]);
+            (x[i as usize], ax[i as usize]) = (u[k], ku[k]);
         }
         for (j, &unknown) in self.interior.iter().enumerate() {
-            let b = clamped.b[j];
+            let (unknown, b) = (unknown as usize, clamped.b[j]);
             (x[unknown], ax[unknown]) = (b, self.d[j] * b);
-            for &i in &self.rows[self.rows_ptr[j]..self.rows_ptr[j + 1]] {
+            for i in self.rows_of(j) {
                 cx[i] += self.beta[i] * b;
                 ct_lambda[unknown] += self.beta[i] * lambda[i];
                 if lambda[i] != 0.0 {
-                    for p in self.row_ptr[i]..self.row_ptr[i + 1] {
+                    for p in self.row_range(i) {
                         gradient[self.row_cols[p] as usize] -= lambda[i] * self.row_vals[p];
                     }
                 }
@@ -508,7 +495,7 @@ impl Condensed {
         let mut residual = ku;
         for (k, &i) in self.skeleton.iter().enumerate() {
             residual[k] -= self.load[k];
-            ct_lambda[i] = -gradient[k];
+            ct_lambda[i as usize] = -gradient[k];
             gradient[k] += residual[k];
         }
         Iterate {
@@ -606,7 +593,7 @@ impl HessianCycle {
         for (j, &i) in self.applied.iter().enumerate() {
             if i != NONE {
                 let s = condensed.term_weight(j, i) * condensed.row_product(i, u);
-                for p in condensed.row_ptr[i]..condensed.row_ptr[i + 1] {
+                for p in condensed.row_range(i) {
                     ku[condensed.row_cols[p] as usize] -= s * condensed.row_vals[p];
                 }
             }
@@ -621,8 +608,8 @@ impl HessianCycle {
         // unknowns: the operators' columns are then read front by front,
         // not scattered (a whole contact set enters at a level's first step).
         let first_position = |i: usize| {
-            let k = condensed.row_ptr[i];
-            match k < condensed.row_ptr[i + 1] {
+            let (k, end) = (condensed.row_range(i).start, condensed.row_range(i).end);
+            match k < end {
                 true => self.position[condensed.row_cols[k] as usize],
                 false => 0,
             }
@@ -695,7 +682,8 @@ impl HessianCycle {
         w: f64,
         delta: &mut [f64],
     ) -> Result<()> {
-        let mut r: Vec<(usize, f64)> = (condensed.row_ptr[i]..condensed.row_ptr[i + 1])
+        let mut r: Vec<(usize, f64)> = condensed
+            .row_range(i)
             .map(|k| {
                 (
                     self.position[condensed.row_cols[k] as usize],
@@ -835,7 +823,6 @@ pub fn multigrid_newton(
             options.tol,
             options.show_progress,
         );
-    let set_up = |problem: &ContactProblem, l: usize| LevelSetup::new(problem, l, options);
     let mut per_level = Vec::with_capacity(finest + 1);
     // Levels 0 … finest − 1 from the coarsest, each from the previous one's
     // u and on its cycle, each problem dropped once solved; the finest
@@ -846,7 +833,7 @@ pub fn multigrid_newton(
      -> Result<(Vec<f64>, Option<HessianCycle>)> {
         let (mut u, mut cycle) = (Vec::new(), None);
         for (l, level_problem) in coarser.into_iter().enumerate() {
-            let setup = set_up(&level_problem, l)?;
+            let setup = LevelSetup::new(&level_problem, l, options)?;
             let solved = solve_level(
                 setup,
                 cycle,
@@ -864,7 +851,7 @@ pub fn multigrid_newton(
     let (coarser_solved, finest_setup) = beside(
         options.threads,
         || solve_coarser(&mut builder, &mut per_level),
-        || set_up(problem, finest),
+        || LevelSetup::new(problem, finest, options),
     );
     let ((u, cycle), finest_setup) = (coarser_solved?, finest_setup?);
     let solved = solve_level(
@@ -969,21 +956,42 @@ impl Transfers<'_> {
 
 /// A level made ready for Newton: its problem condensed, its K in sweep
 /// order (the top of its V-cycle), the dual diagonal of its KKT measure.
-struct LevelSetup {
+struct LevelSetup<'p> {
     level: usize,
-    condensed: Condensed,
+    condensed: Condensed<'p>,
     k: SweptLevel,
     compliance: Vec<f64>,
 }
 
-impl LevelSetup {
+impl<'p> LevelSetup<'p> {
     fn new(
-        problem: &ContactProblem,
+        problem: &'p ContactProblem,
         level: usize,
         options: &MultigridNewtonOptions,
     ) -> Result<Self> {
-        let (condensed, k) = Condensed::of(problem)?;
-        let k = SweptLevel::new(level, &k, options.cycle.order)?;
+        let (condensed, skeleton_of) = Condensed::of(problem)?;
+        // K, the skeleton block of A, from A's lower triangle (whichever
+        // way A is stored) straight into sweep order.
+        let a = &problem.matrix;
+        let skeleton_lower = |visit: &mut dyn FnMut(usize, usize, f64)| {
+            for j in 0..a.ncols() {
+                let sj = skeleton_of[j];
+                if sj == NONE {
+                    continue;
+                }
+                let range = a.symbolic().col_range(j);
+                for (&i, &v) in a.symbolic().row_idx()[range.clone()]
+                    .iter()
+                    .zip(&a.val()[range])
+                {
+                    if i >= j && skeleton_of[i] != NONE {
+                        visit(skeleton_of[i], sj, v);
+                    }
+                }
+            }
+        };
+        let n_skeleton = condensed.n_skeleton();
+        let k = SweptLevel::from_lower(level, n_skeleton, skeleton_lower, options.cycle.order)?;
         Ok(LevelSetup {
             level,
             compliance: jacobi_dual_diagonal(problem),
