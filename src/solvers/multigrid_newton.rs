@@ -813,7 +813,6 @@ pub fn multigrid_newton(
         prolongations: &prolongations,
         lifts: &lifts,
         obstacles: obstacles.as_deref(),
-        finest,
     };
     let mut builder = ReportBuilder::new("multigrid", clock, 0.0, 0.0)
         .with_history(&["level", "cg_iterations", "step_length", "active_changes"])
@@ -834,15 +833,8 @@ pub fn multigrid_newton(
         let (mut u, mut cycle) = (Vec::new(), None);
         for (l, level_problem) in coarser.into_iter().enumerate() {
             let setup = LevelSetup::new(&level_problem, l, options)?;
-            let solved = solve_level(
-                setup,
-                cycle,
-                &level_problem,
-                &u,
-                &transfers,
-                options,
-                builder,
-            )?;
+            let started = Started::on(setup, cycle, &u, &transfers, options)?;
+            let solved = solve_level(started, &level_problem, false, options, builder)?;
             per_level.push((solved.newton_steps, solved.cg_iterations));
             (u, cycle) = (solved.u, solved.cycle);
         }
@@ -854,15 +846,11 @@ pub fn multigrid_newton(
         || LevelSetup::new(problem, finest, options),
     );
     let ((u, cycle), finest_setup) = (coarser_solved?, finest_setup?);
-    let solved = solve_level(
-        finest_setup,
-        cycle,
-        problem,
-        &u,
-        &transfers,
-        options,
-        &mut builder,
-    )?;
+    let started = Started::on(finest_setup, cycle, &u, &transfers, options)?;
+    // The transfers served the start and the cycle: not held through the
+    // finest level's Newton steps (at 1025², 70 MB).
+    drop((u, prolongations, lifts, obstacles));
+    let solved = solve_level(started, problem, true, options, &mut builder)?;
     per_level.push((solved.newton_steps, solved.cg_iterations));
     builder.iterations = solved.newton_steps;
     builder.measures = solved.measures;
@@ -880,12 +868,11 @@ pub fn multigrid_newton(
 }
 
 /// The hierarchy's prolongations, lifts and obstacles (as
-/// [`MultigridLevels`]) and the finest level's index.
+/// [`MultigridLevels`]).
 struct Transfers<'a> {
     prolongations: &'a [SparseColMat<usize, f64>],
     lifts: &'a [Vec<f64>],
     obstacles: Option<&'a [SkeletonObstacles]>,
-    finest: usize,
 }
 
 impl Transfers<'_> {
@@ -1001,35 +988,69 @@ impl<'p> LevelSetup<'p> {
     }
 }
 
-/// Newton on the level of `setup` (module docs), from the interpolant of
-/// the level below's skeleton solution `coarse_u` (from 0 on level 0),
-/// its cycle stacked on the level below's (`below`, without its terms).
+/// A level ready for its first Newton step: its cycle and its start.
+struct Started<'p> {
+    level: usize,
+    condensed: Condensed<'p>,
+    cycle: HessianCycle,
+    u: Vec<f64>,
+    compliance: Vec<f64>,
+}
+
+impl<'p> Started<'p> {
+    /// The level of `setup` started from the interpolant of the level
+    /// below's skeleton solution `coarse_u` (from 0 on level 0), its cycle
+    /// stacked on the level below's (`below`, without its terms).
+    fn on(
+        setup: LevelSetup<'p>,
+        below: Option<HessianCycle>,
+        coarse_u: &[f64],
+        transfers: &Transfers,
+        options: &MultigridNewtonOptions,
+    ) -> Result<Self> {
+        let LevelSetup {
+            level,
+            condensed,
+            k,
+            compliance,
+        } = setup;
+        let below = level.checked_sub(1).map(|l| {
+            let cycle = below.expect("every level above the coarsest has the cycle below");
+            (cycle, &transfers.prolongations[l])
+        });
+        let cycle = HessianCycle::on(&condensed, k, below, options.cycle)?;
+        let u = match level {
+            0 => vec![0.0; condensed.n_skeleton()],
+            _ => transfers.start(level, coarse_u, condensed.n_skeleton())?,
+        };
+        Ok(Started {
+            level,
+            condensed,
+            cycle,
+            u,
+            compliance,
+        })
+    }
+}
+
+/// Newton on the `started` level (module docs); `finest`: the given
+/// problem's level (its tolerance, and no cycle kept for a level above).
 fn solve_level(
-    setup: LevelSetup,
-    below: Option<HessianCycle>,
+    started: Started,
     problem: &ContactProblem,
-    coarse_u: &[f64],
-    transfers: &Transfers,
+    finest: bool,
     options: &MultigridNewtonOptions,
     builder: &mut ReportBuilder,
 ) -> Result<LevelSolve> {
-    let LevelSetup {
+    let Started {
         level,
         condensed,
-        k,
+        mut cycle,
+        mut u,
         compliance,
-    } = setup;
+    } = started;
     let condensed = &condensed;
-    let below = level.checked_sub(1).map(|l| {
-        let cycle = below.expect("every level above the coarsest has the cycle below");
-        (cycle, &transfers.prolongations[l])
-    });
-    let mut cycle = HessianCycle::on(condensed, k, below, options.cycle)?;
-    let mut u = match level {
-        0 => vec![0.0; condensed.n_skeleton()],
-        _ => transfers.start(level, coarse_u, condensed.n_skeleton())?,
-    };
-    let tol = if level == transfers.finest {
+    let tol = if finest {
         options.tol
     } else {
         options.coarse_tol.max(options.tol)
@@ -1083,7 +1104,7 @@ fn solve_level(
         );
         let converged = measures.kkt <= tol;
         if converged || newton_steps >= options.max_iter {
-            let cycle = match level == transfers.finest {
+            let cycle = match finest {
                 true => None,
                 false => Some(cycle.without_terms(condensed)?),
             };
