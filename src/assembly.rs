@@ -512,7 +512,7 @@ pub fn assemble_bilinear_eliminated(
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
     let free_dofs = |space: &Space, numbering: &DofNumbering, t: usize, out: &mut Vec<usize>| {
         let (element, n) = space.element_dofs(t);
-        out.extend(element[..n].iter().filter_map(|&d| numbering.free_index[d]));
+        out.extend(element[..n].iter().filter_map(|&d| numbering.free_index(d)));
     };
     let mut matrix = if std::ptr::eq(test, trial) && std::ptr::eq(rows, cols) {
         ElementMatrix::new(rows.n_free(), test.mesh.n_triangles(), |t, dofs| {
@@ -533,10 +533,10 @@ pub fn assemble_bilinear_eliminated(
     element_matrices(test, trial, rule, form, |test_dofs, trial_dofs, local| {
         let (mut free_rows, mut free_cols) = ([None; MAX_LOCAL], [None; MAX_LOCAL]);
         for (f, &d) in free_rows.iter_mut().zip(test_dofs) {
-            *f = rows.free_index[d];
+            *f = rows.free_index(d);
         }
         for (f, &d) in free_cols.iter_mut().zip(trial_dofs) {
-            *f = cols.free_index[d];
+            *f = cols.free_index(d);
         }
         let (free_rows, free_cols) = (
             &free_rows[..test_dofs.len()],
@@ -572,9 +572,9 @@ pub fn p1_stiffness(
     fixed_values: &[f64],
     reserve: usize,
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
-    let free = &numbering.free_index;
+    let free = |d: usize| numbering.free_index(d);
     let n = numbering.n_free();
-    let free_edge = |[a, b]: [usize; 2]| Some((free[a]?, free[b]?));
+    let free_edge = |[a, b]: [usize; 2]| Some((free(a)?, free(b)?));
     let mut col_ptr = Vec::with_capacity(n + 1 + reserve);
     col_ptr.push(0usize);
     col_ptr.resize(n + 1, 1);
@@ -640,7 +640,7 @@ pub fn p1_stiffness(
         });
         let scale = 0.25 / mesh.area(t).abs();
         for i in 0..3 {
-            let Some(fi) = free[tri[i]] else { continue };
+            let Some(fi) = free(tri[i]) else { continue };
             for j in 0..3 {
                 let k_ij = (d[i][0] * d[j][0] + d[i][1] * d[j][1]) * scale;
                 if i == j {
@@ -650,7 +650,7 @@ pub fn p1_stiffness(
                 // The edge joining local vertices i and j is the one
                 // opposite the third.
                 let e = edges[3 - i - j];
-                match free[tri[j]] {
+                match free(tri[j]) {
                     // (fi, fj) lies in column fj.
                     Some(_) => {
                         let side = usize::from(mesh.edges[e][0] != tri[j]);
@@ -717,7 +717,7 @@ pub fn assemble_p0_mass(
     for t in 0..m {
         let (dofs, _) = trial.element_dofs(t);
         for &d in &dofs[..n] {
-            if let Some(c) = cols.free_index[d] {
+            if let Some(c) = cols.free_index(d) {
                 col_ptr[c + 1] += 1;
             }
         }
@@ -733,7 +733,7 @@ pub fn assemble_p0_mass(
         let area = mesh.area(t);
         let (dofs, _) = trial.element_dofs(t);
         for (&d, mean) in dofs[..n].iter().zip(&means) {
-            match cols.free_index[d] {
+            match cols.free_index(d) {
                 Some(c) => {
                     (rows[next[c]], values[next[c]]) = (t, area * mean);
                     next[c] += 1;
@@ -958,24 +958,57 @@ pub fn lumped_mass(space: &Space, rule: &TriangleRule) -> Vec<f64> {
 /// Which global dofs are free (unknowns) and which are fixed (Dirichlet).
 #[derive(Debug, Clone)]
 pub struct DofNumbering {
-    /// For each global dof, its index among the free dofs, or None if fixed.
-    pub free_index: Vec<Option<usize>>,
+    /// For each global dof, its index among the free dofs, or [`FIXED`]:
+    /// 32 bits (held through a whole solve, one per dof).
+    free_index: Vec<u32>,
     /// The free dofs in order.
     pub free_dofs: Vec<usize>,
 }
 
+/// [`DofNumbering`]'s mark of a fixed dof.
+const FIXED: u32 = u32::MAX;
+
 impl DofNumbering {
+    /// # Panics
+    /// With 2³² − 1 dofs or more (the memory guard refuses far fewer).
     pub fn from_fixed_mask(fixed: &[bool]) -> Self {
-        let mut free_index = vec![None; fixed.len()];
+        assert!(
+            u32::try_from(fixed.len()).is_ok_and(|n| n < FIXED),
+            "{} dofs: a numbering holds 32-bit indices",
+            fixed.len()
+        );
+        let mut free_index = vec![FIXED; fixed.len()];
         let mut free_dofs = Vec::with_capacity(fixed.iter().filter(|&&f| !f).count());
         for (d, &f) in fixed.iter().enumerate() {
             if !f {
-                free_index[d] = Some(free_dofs.len());
+                free_index[d] = free_dofs.len() as u32;
                 free_dofs.push(d);
             }
         }
         DofNumbering {
             free_index,
+            free_dofs,
+        }
+    }
+
+    /// Dof d's index among the free dofs, or None if it is fixed.
+    pub fn free_index(&self, d: usize) -> Option<usize> {
+        match self.free_index[d] {
+            FIXED => None,
+            i => Some(i as usize),
+        }
+    }
+
+    /// The numbering of the first `n` dofs, whose free ones are numbered
+    /// before every other dof's.
+    pub fn leading(&self, n: usize) -> DofNumbering {
+        let free_dofs: Vec<usize> = self.free_dofs.iter().copied().take_while(|&d| d < n).collect();
+        debug_assert!(
+            self.free_dofs[free_dofs.len()..].iter().all(|&d| d >= n),
+            "the first n dofs' free ones first"
+        );
+        DofNumbering {
+            free_index: self.free_index[..n].to_vec(),
             free_dofs,
         }
     }
@@ -1005,7 +1038,7 @@ impl DofNumbering {
         InteriorGroups::from_groups((0..n_triangles).map(|t| {
             bubble_starts
                 .iter()
-                .filter_map(|&start| self.free_index[start + t])
+                .filter_map(|&start| self.free_index(start + t))
                 .collect()
         }))
     }
@@ -1158,10 +1191,10 @@ pub fn eliminate(
     // In place: the full matrix's allocation becomes the reduced one's.
     entries.retain_mut(|e| {
         let (r, c, v) = (e.0 as usize, e.1 as usize, e.2);
-        let Some(ri) = rows.free_index[r] else {
+        let Some(ri) = rows.free_index(r) else {
             return false;
         };
-        match cols.free_index[c] {
+        match cols.free_index(c) {
             Some(ci) => {
                 // Free indices are below the full ones: 32 bits.
                 *e = (ri as u32, ci as u32, v);

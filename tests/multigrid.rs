@@ -228,9 +228,9 @@ fn prolongation_reproduces_linear_functions() {
             }
             // No free coarse vertex reaches a fixed fine one.
             for (fi, row) in full.iter().enumerate() {
-                if rows.free_index[fi].is_none() {
+                if rows.free_index(fi).is_none() {
                     for (cj, &v) in row.iter().enumerate() {
-                        assert!(v == 0.0 || cols.free_index[cj].is_none());
+                        assert!(v == 0.0 || cols.free_index(cj).is_none());
                     }
                 }
             }

@@ -396,13 +396,7 @@ impl<'m> MembraneSystem<'m> {
     /// bubble. This is K on the free vertices, and its shift.
     fn p1_stiffness(&self) -> (SparseColMat<usize, f64>, Vec<f64>) {
         let n_vertices = self.mesh.n_vertices();
-        let vertices = DofNumbering {
-            free_index: self.numbering.free_index[..n_vertices].to_vec(),
-            free_dofs: (self.numbering.free_dofs.iter())
-                .copied()
-                .take_while(|&d| d < n_vertices)
-                .collect(),
-        };
+        let vertices = self.numbering.leading(n_vertices);
         // Room for the bubbles' diagonal ([`MembraneSystem::with_bubbles`]).
         let bubbles = self.mesh.n_triangles();
         crate::assembly::p1_stiffness(

@@ -170,7 +170,11 @@ impl P2FieldLevels {
             .iter()
             .enumerate()
             .map(|(l, level)| match l == finest {
-                true => (level.numbering.free_index.clone(), level.numbering.n_free()),
+                true => {
+                    let numbering = &level.numbering;
+                    let index = (0..numbering.n_total()).map(|d| numbering.free_index(d));
+                    (index.collect(), numbering.n_free())
+                }
                 false => p2_unknowns(&hierarchy.levels[l], level),
             })
             .collect();
@@ -208,12 +212,12 @@ impl P2FieldLevels {
 /// field: each dof's unknown, and their number.
 fn p2_unknowns(mesh: &Mesh, level: &FieldLevel<'_>) -> (Vec<Option<usize>>, usize) {
     let p2_nodes = mesh.n_vertices() + mesh.n_edges();
-    let free = &level.numbering.free_index;
-    let mut index = vec![None; free.len()];
+    let numbering = &level.numbering;
+    let mut index = vec![None; numbering.n_total()];
     let mut count = 0;
     for &offset in level.offsets {
         for d in offset..offset + p2_nodes {
-            if free[d].is_some() {
+            if numbering.free_index(d).is_some() {
                 index[d] = Some(count);
                 count += 1;
             }

@@ -56,16 +56,16 @@ pub fn p1_prolongation(
     let mut p = Triplets::new(fine_free.n_free(), coarse_free.n_free());
     p.reserve(n + 2 * coarse.n_edges());
     for v in 0..n {
-        if let (Some(i), Some(j)) = (fine_free.free_index[v], coarse_free.free_index[v]) {
+        if let (Some(i), Some(j)) = (fine_free.free_index(v), coarse_free.free_index(v)) {
             p.push(i, j, 1.0);
         }
     }
     for (e, ends) in coarse.edges.iter().enumerate() {
-        let Some(i) = fine_free.free_index[n + e] else {
+        let Some(i) = fine_free.free_index(n + e) else {
             continue;
         };
         for &v in ends {
-            if let Some(j) = coarse_free.free_index[v] {
+            if let Some(j) = coarse_free.free_index(v) {
                 p.push(i, j, 0.5);
             }
         }
@@ -120,11 +120,11 @@ impl P1Levels {
                 let n = coarse.n_vertices();
                 let mut lift = vec![0.0; fine_free.n_free()];
                 for (e, ends) in coarse.edges.iter().enumerate() {
-                    let Some(i) = fine_free.free_index[n + e] else {
+                    let Some(i) = fine_free.free_index(n + e) else {
                         continue;
                     };
                     for &v in ends {
-                        if coarse_free.free_index[v].is_none() {
+                        if coarse_free.free_index(v).is_none() {
                             lift[i] += 0.5 * g_d(coarse.vertices[v]);
                         }
                     }

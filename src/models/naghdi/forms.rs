@@ -665,7 +665,7 @@ pub fn assemble_shell_layout(
     numbering: &DofNumbering,
 ) -> (SparseColMat<usize, f64>, Vec<f64>) {
     let free = |globals: &[usize]| -> Vec<Option<usize>> {
-        globals.iter().map(|&d| numbering.free_index[d]).collect()
+        globals.iter().map(|&d| numbering.free_index(d)).collect()
     };
     let mut a = ElementMatrix::new(numbering.n_free(), mesh.n_triangles(), |t, dofs| {
         let (u, psi) = element_globals(mesh, layout, t);

@@ -230,7 +230,7 @@ fn oblique_symmetry_ties(
                             FieldRole::Displacement(c) | FieldRole::CartesianRotation(c) => n[c],
                             FieldRole::TangencyMultiplier => 0.0,
                         };
-                        numbering.free_index[layout.fields[f].offset + d].map(|i| (i, c))
+                        numbering.free_index(layout.fields[f].offset + d).map(|i| (i, c))
                     })
                     .collect();
                 let scale = terms.iter().fold(0.0f64, |m, t| m.max(t.1.abs()));
@@ -787,7 +787,7 @@ impl ModelSystem for NaghdiSystem<'_> {
             let basis = field.element.basis(l);
             let (dofs, n) = Space::new(self.mesh, field.element).element_dofs(t);
             for k in 0..n {
-                if let Some(i) = self.numbering.free_index[field.offset + dofs[k]] {
+                if let Some(i) = self.numbering.free_index(field.offset + dofs[k]) {
                     match &self.ties {
                         Some(ties) => terms.extend(
                             ties.row(i)
