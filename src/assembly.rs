@@ -1002,7 +1002,12 @@ impl DofNumbering {
     /// The numbering of the first `n` dofs, whose free ones are numbered
     /// before every other dof's.
     pub fn leading(&self, n: usize) -> DofNumbering {
-        let free_dofs: Vec<usize> = self.free_dofs.iter().copied().take_while(|&d| d < n).collect();
+        let free_dofs: Vec<usize> = self
+            .free_dofs
+            .iter()
+            .copied()
+            .take_while(|&d| d < n)
+            .collect();
         debug_assert!(
             self.free_dofs[free_dofs.len()..].iter().all(|&d| d >= n),
             "the first n dofs' free ones first"

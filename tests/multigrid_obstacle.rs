@@ -11,7 +11,7 @@ mod common;
 
 use common::manifest_path;
 use obstacle_fem::mesh::Mesh;
-use obstacle_fem::pipeline::{scene_hierarchy, solve_on, write_refined_msh, Start};
+use obstacle_fem::pipeline::{assembled, scene_hierarchy, solve_on, write_refined_msh, Start};
 use obstacle_fem::scene::Scene;
 use obstacle_fem::solvers::SolveReport;
 
@@ -22,22 +22,39 @@ fn scene(path: &str, overrides: &[&str]) -> Scene {
 }
 
 /// The scene solved by multigrid on its hierarchy and by the active set on
-/// the same finest mesh: both reports.
+/// the same finest mesh: both reports. The multigrid solve gives its
+/// problem back with C entry for entry as assembled (it holds C in its
+/// condensed rows meanwhile).
 fn multigrid_and_active_set(path: &str, overrides: &[&str]) -> (SolveReport, SolveReport) {
     let mut with_mg = overrides.to_vec();
     with_mg.push("solver.method=multigrid");
     let mg_scene = scene(path, &with_mg);
     let dir = tempfile::tempdir().unwrap();
     let hierarchy = scene_hierarchy(&mg_scene, &dir.path().join("mesh.msh")).unwrap();
-    let mg = solve_on(
+    let solved = solve_on(
         &mg_scene,
         hierarchy.finest(),
         Start::Scene(Some(&hierarchy)),
         false,
         &mut |_| {},
     )
-    .unwrap()
-    .report;
+    .unwrap();
+    let (_, assembled) = assembled(&mg_scene, hierarchy.finest()).unwrap();
+    let (given_back, as_assembled) = (
+        &solved.problem.constraint.as_ref().unwrap().matrix,
+        &assembled.constraint.as_ref().unwrap().matrix,
+    );
+    let pattern = |c: &faer::sparse::SparseColMat<usize, f64>| {
+        let s = c.symbolic();
+        (s.nrows(), s.col_ptr().to_vec(), s.row_idx().to_vec())
+    };
+    assert_eq!(
+        pattern(given_back),
+        pattern(as_assembled),
+        "{path}: C's pattern"
+    );
+    assert_eq!(given_back.val(), as_assembled.val(), "{path}: C's values");
+    let mg = solved.report;
     let mut with_as = overrides.to_vec();
     with_as.push("solver.method=active-set");
     let as_scene = scene(path, &with_as);

@@ -3,6 +3,7 @@
 use super::ContactProblem;
 use crate::linalg::{mat_t_vec, mat_vec, over_halves};
 use crate::solvers::DualNorm;
+use faer::sparse::SparseColMat;
 use std::ops::Range;
 
 /// KKT measures of an iterate (x, λ). Absolute values, and the relative
@@ -248,10 +249,18 @@ impl RowMeasures {
 /// opens on its own: the gap scale of the measures and the active set's
 /// rule c_i = 1/S̃_ii.
 pub fn jacobi_dual_diagonal(problem: &ContactProblem) -> Vec<f64> {
-    let Some(c) = problem.constraint.as_ref() else {
-        return Vec::new();
-    };
-    let a = &problem.matrix;
+    match problem.constraint.as_ref() {
+        Some(c) => jacobi_dual_diagonal_of(&problem.matrix, &c.matrix, &c.weights),
+        None => Vec::new(),
+    }
+}
+
+/// [`jacobi_dual_diagonal`] of A, C and the weights given apart.
+pub fn jacobi_dual_diagonal_of(
+    a: &SparseColMat<usize, f64>,
+    c: &SparseColMat<usize, f64>,
+    weights: &[f64],
+) -> Vec<f64> {
     let diag: Vec<f64> = (0..a.ncols())
         .map(|j| {
             a.symbolic()
@@ -262,21 +271,16 @@ pub fn jacobi_dual_diagonal(problem: &ContactProblem) -> Vec<f64> {
                 .sum()
         })
         .collect();
-    let mut s = vec![0.0; c.obstacle.len()];
-    for j in 0..c.matrix.ncols() {
+    let mut s = vec![0.0; c.nrows()];
+    for j in 0..c.ncols() {
         if diag[j] == 0.0 {
             continue;
         }
-        for (i, v) in c
-            .matrix
-            .symbolic()
-            .row_idx_of_col(j)
-            .zip(c.matrix.val_of_col(j))
-        {
+        for (i, v) in c.symbolic().row_idx_of_col(j).zip(c.val_of_col(j)) {
             s[i] += v * v / diag[j];
         }
     }
-    s.iter_mut().zip(&c.weights).for_each(|(si, w)| *si /= w);
+    s.iter_mut().zip(weights).for_each(|(si, w)| *si /= w);
     s
 }
 

@@ -187,7 +187,7 @@ pub fn solve(
         SolverOptions::UzawaSplit(o) => uzawa_split(&problem, o),
         SolverOptions::DualAccelerated(o) => dual_accelerated(&problem, o),
         SolverOptions::ActiveSet(o) => return active_set(problem, o),
-        SolverOptions::Multigrid(o) => multigrid_newton(&problem, o),
+        SolverOptions::Multigrid(o) => return multigrid_newton(problem, o),
     }?;
     Ok((problem, report))
 }

@@ -51,13 +51,13 @@
 //! curved obstacle by O(H²), and the contact set's rows would answer that
 //! gap with multipliers of order gap/h².
 
-use super::measures::{dual_step_norm, jacobi_dual_diagonal, kkt_measures_with, Products};
+use super::measures::{dual_step_norm, jacobi_dual_diagonal_of, kkt_measures_with, Products};
 use super::monitor::{check_finite, Monitor};
 use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{beside, cut, each_in_halves, mat_vec, on_paired_halves, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
-use faer::sparse::SparseColMat;
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -173,6 +173,9 @@ struct Condensed<'p> {
     /// Per interior unknown: its rows (compressed).
     rows_ptr: Vec<u32>,
     rows: Vec<u32>,
+    /// Whether the rows hold every entry of C, its columns' rows in
+    /// ascending order: then [`Condensed::constraint_matrix`] is C again.
+    holds_constraint: bool,
 }
 
 /// A skeleton iterate's interior values and active rows.
@@ -189,8 +192,12 @@ impl<'p> Condensed<'p> {
     /// equality multipliers, an interior group of more than one unknown, an
     /// interior unknown coupled to another, a row without (or with two)
     /// interior unknowns. With it each unknown's skeleton index (NONE for
-    /// the interior ones).
-    fn of(problem: &'p ContactProblem) -> Result<(Self, Vec<usize>)> {
+    /// the interior ones). C is `taken` when the solve holds it apart from
+    /// the problem, else the problem's.
+    fn of(
+        problem: &'p ContactProblem,
+        taken: Option<&SparseColMat<usize, f64>>,
+    ) -> Result<(Self, Vec<usize>)> {
         let refuse = |reason: String| {
             Error::numerical(
                 STAGE,
@@ -209,7 +216,8 @@ impl<'p> Condensed<'p> {
             return Err(refuse(format!("A is {}", problem.kind.describe())));
         }
         let n = problem.n();
-        let (m, c_entries) = (c.obstacle.len(), c.matrix.compute_nnz());
+        let cm = taken.unwrap_or(&c.matrix);
+        let (m, c_entries) = (c.obstacle.len(), cm.compute_nnz());
         if u32::try_from(n.max(m).max(c_entries)).is_err() {
             return Err(Error::numerical(
                 STAGE,
@@ -292,7 +300,6 @@ impl<'p> Condensed<'p> {
         let mut row_interior = vec![NONE; m];
         let mut beta = vec![0.0; m];
         let mut row_ptr = vec![0u32; m + 1];
-        let cm = &c.matrix;
         for j in 0..n {
             let range = cm.symbolic().col_range(j);
             for (&i, &v) in cm.symbolic().row_idx()[range.clone()]
@@ -357,7 +364,13 @@ impl<'p> Condensed<'p> {
             rows[next[b] as usize] = i as u32;
             next[b] += 1;
         }
+        let ascending = (0..n).all(|j| {
+            let rows = cm.symbolic().row_idx_of_col_raw(j);
+            rows.windows(2).all(|w| w[0] < w[1])
+        });
+        let holds_constraint = c_entries == row_ptr[m] as usize + m && ascending;
         let condensed = Condensed {
+            holds_constraint,
             load: skeleton.iter().map(|&i| problem.rhs[i]).collect(),
             f: interior.iter().map(|&i| problem.rhs[i]).collect(),
             skeleton: skeleton.into_iter().map(|i| i as u32).collect(),
@@ -376,6 +389,47 @@ impl<'p> Condensed<'p> {
 
     fn n_skeleton(&self) -> usize {
         self.skeleton.len()
+    }
+
+    /// C (m × n, n the problem's unknowns) made again from the rows: entry
+    /// for entry C when `holds_constraint`, each column's rows ascending.
+    fn constraint_matrix(&self, n: usize) -> SparseColMat<usize, f64> {
+        let m = self.g.len();
+        let mut col_ptr = vec![0usize; n + 1];
+        for p in 0..self.row_cols.len() {
+            col_ptr[self.skeleton[self.row_cols[p] as usize] as usize + 1] += 1;
+        }
+        for (j, &b) in self.interior.iter().enumerate() {
+            col_ptr[b as usize + 1] += self.rows_of(j).count();
+        }
+        for j in 0..n {
+            col_ptr[j + 1] += col_ptr[j];
+        }
+        let mut next = col_ptr[..n].to_vec();
+        let mut rows = vec![0usize; col_ptr[n]];
+        let mut values = vec![0.0; col_ptr[n]];
+        let mut place = |i: usize, j: usize, v: f64| {
+            (rows[next[j]], values[next[j]]) = (i, v);
+            next[j] += 1;
+        };
+        // A column is a skeleton unknown's or an interior one's: rows in
+        // ascending order either way.
+        for i in 0..m {
+            for p in self.row_range(i) {
+                place(
+                    i,
+                    self.skeleton[self.row_cols[p] as usize] as usize,
+                    self.row_vals[p],
+                );
+            }
+        }
+        for (j, &b) in self.interior.iter().enumerate() {
+            for i in self.rows_of(j) {
+                place(i, b as usize, self.beta[i]);
+            }
+        }
+        let symbolic = SymbolicSparseColMat::new_checked(m, n, col_ptr, None, rows);
+        SparseColMat::new(symbolic, values)
     }
 
     /// The entries of row i in `row_cols` and `row_vals`.
@@ -766,14 +820,21 @@ struct LevelSolve {
     newton_steps: usize,
     cg_iterations: usize,
     converged: bool,
+    /// On the finest level, C made again from the condensed rows when they
+    /// hold it.
+    constraint_matrix: Option<SparseColMat<usize, f64>>,
 }
 
 /// Solves `problem` (constraint rows through interior unknowns, module
-/// docs) by Newton multigrid over the levels of `options`.
+/// docs) by Newton multigrid over the levels of `options`, and gives it
+/// back. Its C is read into the finest level's condensed rows and, when
+/// they hold every entry of it, not kept beside them: it is made again from
+/// them at the end, entry for entry (at 1025², C is 160 MB of a 1.4 GB
+/// peak).
 pub fn multigrid_newton(
-    problem: &ContactProblem,
+    mut given: ContactProblem,
     options: &MultigridNewtonOptions,
-) -> Result<SolveReport> {
+) -> Result<(ContactProblem, SolveReport)> {
     let clock = Instant::now();
     let levels = options
         .levels
@@ -809,6 +870,11 @@ pub fn multigrid_newton(
         ));
     }
     let finest = coarser.len();
+    let taken_c = given.constraint.as_mut().map(|c| {
+        let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
+        std::mem::replace(&mut c.matrix, empty)
+    });
+    let problem = &given;
     let transfers = Transfers {
         prolongations: &prolongations,
         lifts: &lifts,
@@ -832,7 +898,7 @@ pub fn multigrid_newton(
      -> Result<(Vec<f64>, Option<HessianCycle>)> {
         let (mut u, mut cycle) = (Vec::new(), None);
         for (l, level_problem) in coarser.into_iter().enumerate() {
-            let setup = LevelSetup::new(&level_problem, l, options)?;
+            let (setup, _) = LevelSetup::new(&level_problem, None, l, options)?;
             let started = Started::on(setup, cycle, &u, &transfers, options)?;
             let solved = solve_level(started, &level_problem, false, options, builder)?;
             per_level.push((solved.newton_steps, solved.cg_iterations));
@@ -843,14 +909,15 @@ pub fn multigrid_newton(
     let (coarser_solved, finest_setup) = beside(
         options.threads,
         || solve_coarser(&mut builder, &mut per_level),
-        || LevelSetup::new(problem, finest, options),
+        || LevelSetup::new(problem, taken_c, finest, options),
     );
-    let ((u, cycle), finest_setup) = (coarser_solved?, finest_setup?);
+    let ((u, cycle), (finest_setup, kept_c)) = (coarser_solved?, finest_setup?);
     let started = Started::on(finest_setup, cycle, &u, &transfers, options)?;
     // The transfers served the start and the cycle: not held through the
     // finest level's Newton steps (at 1025², 70 MB).
     drop((u, prolongations, lifts, obstacles));
     let solved = solve_level(started, problem, true, options, &mut builder)?;
+    let restored_c = kept_c.or(solved.constraint_matrix);
     per_level.push((solved.newton_steps, solved.cg_iterations));
     builder.iterations = solved.newton_steps;
     builder.measures = solved.measures;
@@ -864,7 +931,11 @@ pub fn multigrid_newton(
     }
     let cg_total: usize = per_level.iter().map(|p| p.1).sum();
     parameters.push(("cg_iterations".into(), cg_total as f64));
-    Ok(builder.finish(solved.x, solved.lambda, parameters))
+    let report = builder.finish(solved.x, solved.lambda, parameters);
+    if let (Some(c), Some(matrix)) = (given.constraint.as_mut(), restored_c) {
+        c.matrix = matrix;
+    }
+    Ok((given, report))
 }
 
 /// The hierarchy's prolongations, lifts and obstacles (as
@@ -951,12 +1022,27 @@ struct LevelSetup<'p> {
 }
 
 impl<'p> LevelSetup<'p> {
+    /// Level `level` of `problem`, whose C is `taken` when the solve holds
+    /// it apart from the problem: given back unless the condensed rows hold
+    /// it ([`Condensed::constraint_matrix`]), dropped before K is put in
+    /// sweep order (the set-up's largest allocation).
     fn new(
         problem: &'p ContactProblem,
+        taken: Option<SparseColMat<usize, f64>>,
         level: usize,
         options: &MultigridNewtonOptions,
-    ) -> Result<Self> {
-        let (condensed, skeleton_of) = Condensed::of(problem)?;
+    ) -> Result<(Self, Option<SparseColMat<usize, f64>>)> {
+        let (condensed, skeleton_of) = Condensed::of(problem, taken.as_ref())?;
+        let c = problem
+            .constraint
+            .as_ref()
+            .expect("condensed: a constraint");
+        let compliance = jacobi_dual_diagonal_of(
+            &problem.matrix,
+            taken.as_ref().unwrap_or(&c.matrix),
+            &c.weights,
+        );
+        let taken = taken.filter(|_| !condensed.holds_constraint);
         // K, the skeleton block of A, from A's lower triangle (whichever
         // way A is stored) straight into sweep order.
         let a = &problem.matrix;
@@ -979,12 +1065,13 @@ impl<'p> LevelSetup<'p> {
         };
         let n_skeleton = condensed.n_skeleton();
         let k = SweptLevel::from_lower(level, n_skeleton, skeleton_lower, options.cycle.order)?;
-        Ok(LevelSetup {
+        let setup = LevelSetup {
             level,
-            compliance: jacobi_dual_diagonal(problem),
+            compliance,
             condensed,
             k,
-        })
+        };
+        Ok((setup, taken))
     }
 }
 
@@ -1104,10 +1191,17 @@ fn solve_level(
         );
         let converged = measures.kkt <= tol;
         if converged || newton_steps >= options.max_iter {
+            // C is made again once the cycle and the products are gone.
+            drop((ax, cx, ct_lambda, residual, gradient, clamped));
             let cycle = match finest {
-                true => None,
+                true => {
+                    drop(cycle);
+                    None
+                }
                 false => Some(cycle.without_terms(condensed)?),
             };
+            let constraint_matrix = (finest && condensed.holds_constraint)
+                .then(|| condensed.constraint_matrix(problem.n()));
             return Ok(LevelSolve {
                 u,
                 cycle,
@@ -1117,6 +1211,7 @@ fn solve_level(
                 newton_steps,
                 cg_iterations,
                 converged,
+                constraint_matrix,
             });
         }
         monitor.stagnation(newton_steps, measures.kkt, tol)?;

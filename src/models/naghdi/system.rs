@@ -230,7 +230,9 @@ fn oblique_symmetry_ties(
                             FieldRole::Displacement(c) | FieldRole::CartesianRotation(c) => n[c],
                             FieldRole::TangencyMultiplier => 0.0,
                         };
-                        numbering.free_index(layout.fields[f].offset + d).map(|i| (i, c))
+                        numbering
+                            .free_index(layout.fields[f].offset + d)
+                            .map(|i| (i, c))
                     })
                     .collect();
                 let scale = terms.iter().fold(0.0f64, |m, t| m.max(t.1.abs()));
