@@ -13,8 +13,8 @@
 # iterations,peak_rss_mb) and OUT_DIR/table.md (both codes per size, ratio ours/PETSc).
 # A run that fails (our memory guard refusing a size, say) is a row with empty error and
 # iterations, its reason in the Markdown, and the next size runs. Our memory guard's limit
-# is MEMORY_LIMIT_GB (default 0.9 × MemTotal; the guard's own default, half of MemAvailable,
-# refuses 1025², whose estimate is ~3.6× its measured peak).
+# is MEMORY_LIMIT_GB in GB of 10⁹ bytes, as mesh.memory_limit_gb (default 0.9 × MemTotal;
+# the guard's own default, half of MemAvailable, refuses 4097²).
 set -uo pipefail
 [ $# -ge 4 ] || { echo "usage: $0 BIN PETSC_BALL OUT_DIR N..." >&2; exit 2; }
 bin=$1 ball=$2 out=$3
@@ -25,7 +25,7 @@ csv=$out/table.csv md=$out/table.md notes=$out/notes.txt cpu=$out/cpu.csv
 echo "code,vertices,wall_seconds,max_error,iterations,peak_rss_mb" > "$csv"
 : > "$notes"
 : > "$cpu"
-memory_gb=${MEMORY_LIMIT_GB:-$(awk '$1 == "MemTotal:" { printf "%.1f", 0.9 * $2 / 1048576 }' /proc/meminfo)}
+memory_gb=${MEMORY_LIMIT_GB:-$(awk '$1 == "MemTotal:" { printf "%.1f", 0.9 * $2 * 1024 / 1e9 }' /proc/meminfo)}
 load_start=$(cut -d' ' -f1-3 /proc/loadavg)
 
 # `/usr/bin/time -f "%e %M %U %S"` output (its last line) → "wall_seconds peak_rss_mb cpu_seconds".

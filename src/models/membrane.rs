@@ -54,11 +54,11 @@ impl ModelKind for Membrane {
     }
 
     /// No factorisation: the ball at 513², 1025² and 2049² (1.3M, 5.2M and
-    /// 21M unknowns; `make peers-bench`) peaks at 324, 311 and 308 bytes per
-    /// unknown (405, 1554 and 6169 MiB); 400 keeps the estimate above the
-    /// peak, within 1.30× of it.
+    /// 21M unknowns; `make peers-bench`) peaks at 265, 250 and 250 bytes per
+    /// unknown (331, 1248 and 5005 MiB); 280 keeps the estimate above the
+    /// peak, within 1.12× of it.
     fn multigrid_bytes_per_unknown(&self) -> f64 {
-        400.0
+        280.0
     }
 
     fn matrix_inputs(&self) -> (&'static str, &'static str) {
