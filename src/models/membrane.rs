@@ -53,10 +53,10 @@ impl ModelKind for Membrane {
         BYTES_PER_UNKNOWN
     }
 
-    /// No factorisation: the ball at 513², 1025² and 2049² (1.3M, 5.2M and
-    /// 21M unknowns; `make peers-bench`) peaks at 265, 250 and 250 bytes per
-    /// unknown (331, 1248 and 5005 MiB); 280 keeps the estimate above the
-    /// peak, within 1.12× of it.
+    /// No factorisation: the ball at 513², 1025², 2049² and 4097² (1.3M,
+    /// 5.2M, 21M and 84M unknowns; `make peers-bench`) peaks at 263, 250,
+    /// 252 and 248 bytes per unknown (329, 1252, 5045 and 19874 MiB); 280
+    /// keeps the estimate above the peak, within 1.13× of it.
     fn multigrid_bytes_per_unknown(&self) -> f64 {
         280.0
     }
