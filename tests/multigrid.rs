@@ -17,7 +17,7 @@ use obstacle_fem::models::naghdi::system::{field_prolongations, NaghdiSystem};
 use obstacle_fem::models::ModelSystem;
 use obstacle_fem::multigrid::{
     p1_load, p1_stiffness, p2_prolongation, pcg, Multigrid, MultigridOptions, P1Levels, Smoother,
-    SweepOrder,
+    SweepOrder, SweptLevel,
 };
 use obstacle_fem::scene::Scene;
 use std::f64::consts::PI;
@@ -448,6 +448,60 @@ fn large_levels_sweep_in_halves_with_the_same_numbers_on_two_threads() {
             cg1.iterations
         );
     }
+}
+
+/// A level built from the entries of its lower triangle
+/// (`SweptLevel::from_lower`, the Newton multigrid's finest level) is the
+/// level built from the whole matrix (`SweptLevel::new`), bit for bit: the
+/// same order, operator and products, in either sweep order.
+#[test]
+fn a_level_from_its_lower_triangle_is_the_level_from_the_whole_matrix() {
+    let (_, a, b) = square_poisson(4);
+    let n = a.nrows();
+    let lower = |visit: &mut dyn FnMut(usize, usize, f64)| {
+        for j in 0..n {
+            let rows = a.symbolic().row_idx_of_col(j);
+            for (i, &v) in rows.zip(a.val_of_col(j)) {
+                if i >= j {
+                    visit(i, j, v);
+                }
+            }
+        }
+    };
+    for order in [SweepOrder::CuthillMcKee, SweepOrder::Numbered] {
+        let options = MultigridOptions {
+            order,
+            ..MultigridOptions::default()
+        };
+        let whole =
+            Multigrid::on_coarsest(SweptLevel::new(0, &a, order).unwrap(), options).unwrap();
+        let from_lower =
+            Multigrid::on_coarsest(SweptLevel::from_lower(0, n, lower, order).unwrap(), options)
+                .unwrap();
+        assert_eq!(
+            whole.finest_order(),
+            from_lower.finest_order(),
+            "{order:?}: the order"
+        );
+        let (p, q) = (whole.operator(0), from_lower.operator(0));
+        assert_eq!(
+            p.symbolic().col_ptr(),
+            q.symbolic().col_ptr(),
+            "{order:?}: columns"
+        );
+        assert_eq!(
+            p.symbolic().row_idx(),
+            q.symbolic().row_idx(),
+            "{order:?}: rows"
+        );
+        assert_eq!(p.val(), q.val(), "{order:?}: values");
+        assert_eq!(whole.apply(&b), from_lower.apply(&b), "{order:?}: A b");
+    }
+    // A diagonal entry that is not positive is named, as by `new`.
+    let error = SweptLevel::from_lower(3, 2, |visit| visit(1, 1, -1.0), SweepOrder::Numbered)
+        .err()
+        .expect("refused");
+    assert!(error.to_string().contains("level 3"), "{error}");
 }
 
 #[test]

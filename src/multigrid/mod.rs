@@ -17,7 +17,7 @@ pub mod p2;
 pub mod transfer;
 
 pub use crate::linalg::{
-    pcg, CgReport, CycleReport, Multigrid, MultigridOptions, Smoother, SweepOrder,
+    pcg, CgReport, CycleReport, Multigrid, MultigridOptions, Smoother, SweepOrder, SweptLevel,
 };
 pub use p2::{p2_prolongation, FieldLevel, P2FieldLevels};
 pub use transfer::{p1_load, p1_prolongation, p1_stiffness, P1Levels};
