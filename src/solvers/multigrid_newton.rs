@@ -152,8 +152,8 @@ pub struct MultigridNewtonOptions {
 }
 
 /// A problem condensed to its skeleton (module docs). Its indices are 32
-/// bits wide (checked): held through the solve beside the problem, these
-/// arrays are a sixth of the finest level's memory.
+/// bits wide (checked): held through the solve, its arrays are among the
+/// largest the finest level holds.
 struct Condensed<'p> {
     /// The problem's unknown of skeleton unknown k.
     skeleton: Vec<u32>,
@@ -829,8 +829,8 @@ struct LevelSolve {
 /// docs) by Newton multigrid over the levels of `options`, and gives it
 /// back. Its C is read into the finest level's condensed rows and, when
 /// they hold every entry of it, not kept beside them: it is made again from
-/// them at the end, entry for entry (at 1025², C is 160 MB of a 1.4 GB
-/// peak).
+/// them at the end, entry for entry (at 1025², C is 160 MB; the solve
+/// peaks at 1.2 GB without it).
 pub fn multigrid_newton(
     mut given: ContactProblem,
     options: &MultigridNewtonOptions,
