@@ -44,13 +44,9 @@ fn multigrid_and_active_set(path: &str, overrides: &[&str]) -> (SolveReport, Sol
         &solved.problem.constraint.as_ref().unwrap().matrix,
         &assembled.constraint.as_ref().unwrap().matrix,
     );
-    let pattern = |c: &faer::sparse::SparseColMat<usize, f64>| {
-        let s = c.symbolic();
-        (s.nrows(), s.col_ptr().to_vec(), s.row_idx().to_vec())
-    };
     assert_eq!(
-        pattern(given_back),
-        pattern(as_assembled),
+        common::pattern(given_back),
+        common::pattern(as_assembled),
         "{path}: C's pattern"
     );
     assert_eq!(given_back.val(), as_assembled.val(), "{path}: C's values");

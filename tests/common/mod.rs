@@ -7,6 +7,7 @@
 //! FreeFEM FAILS a test (CI installs it), it is never skipped.
 #![allow(dead_code)]
 
+use faer::sparse::SparseColMat;
 use obstacle_fem::freefem;
 use obstacle_fem::gmsh::run_gmsh;
 use obstacle_fem::mesh::{BoundaryEdge, Mesh};
@@ -16,6 +17,19 @@ use obstacle_fem::solvers::{ContactProblem, Probe, SolveReport, SolverOptions};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+
+/// A sparse matrix's pattern: its shape, column pointers and rows (two
+/// matrices with equal patterns and equal `val()` are the same entry for
+/// entry).
+pub fn pattern(a: &SparseColMat<usize, f64>) -> (usize, usize, Vec<usize>, Vec<usize>) {
+    let s = a.symbolic();
+    (
+        a.nrows(),
+        a.ncols(),
+        s.col_ptr().to_vec(),
+        s.row_idx().to_vec(),
+    )
+}
 
 pub fn manifest_path(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
