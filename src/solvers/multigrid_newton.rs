@@ -178,6 +178,17 @@ struct Condensed<'p> {
     holds_constraint: bool,
 }
 
+/// Column j of A's lower triangle, (i, a_ij) with i ≥ j, whichever way A
+/// is stored (whole or its lower triangle).
+fn lower_column(a: &SparseColMat<usize, f64>, j: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
+    let range = a.symbolic().col_range(j);
+    let rows = &a.symbolic().row_idx()[range.clone()];
+    rows.iter()
+        .zip(&a.val()[range])
+        .filter(move |(&i, _)| i >= j)
+        .map(|(&i, &v)| (i, v))
+}
+
 /// A skeleton iterate's interior values and active rows.
 struct Clamped {
     /// c_iᵀ u of every row.
@@ -250,22 +261,14 @@ impl<'p> Condensed<'p> {
         for (k, &i) in skeleton.iter().enumerate() {
             skeleton_of[i] = k;
         }
-        // A's lower triangle (whichever way it is stored), mirrored into
-        // compressed columns: column c receives the rows j < c while the
-        // columns j are read, then its own rows i ≥ c, so each column comes
-        // out sorted. A coupling of an interior unknown is checked where it
-        // is read, against both diagonals (read first).
+        // A's diagonal, then each coupling of an interior unknown checked
+        // against both diagonals.
         let a = &problem.matrix;
-        let lower = |j: usize| {
-            let range = a.symbolic().col_range(j);
-            a.symbolic().row_idx()[range.clone()]
-                .iter()
-                .zip(&a.val()[range])
-                .filter(move |(&i, _)| i >= j)
-        };
         let mut diagonal = vec![0.0; n];
         for (j, dj) in diagonal.iter_mut().enumerate() {
-            *dj = lower(j).find(|(&i, _)| i == j).map_or(0.0, |(_, &v)| v);
+            *dj = lower_column(a, j)
+                .find(|&(i, _)| i == j)
+                .map_or(0.0, |(_, v)| v);
         }
         if let Some(b) = interior
             .iter()
@@ -278,7 +281,7 @@ impl<'p> Condensed<'p> {
         }
         let d: Vec<f64> = interior.iter().map(|&i| diagonal[i]).collect();
         for j in 0..n {
-            for (&i, &v) in lower(j) {
+            for (i, v) in lower_column(a, j) {
                 let (si, sj) = (skeleton_of[i], skeleton_of[j]);
                 if si == NONE && sj == NONE {
                     if i != j && v != 0.0 {
@@ -1043,8 +1046,8 @@ impl<'p> LevelSetup<'p> {
             &c.weights,
         );
         let taken = taken.filter(|_| !condensed.holds_constraint);
-        // K, the skeleton block of A, from A's lower triangle (whichever
-        // way A is stored) straight into sweep order.
+        // K, the skeleton block of A, from A's lower triangle straight into
+        // sweep order.
         let a = &problem.matrix;
         let skeleton_lower = |visit: &mut dyn FnMut(usize, usize, f64)| {
             for j in 0..a.ncols() {
@@ -1052,12 +1055,8 @@ impl<'p> LevelSetup<'p> {
                 if sj == NONE {
                     continue;
                 }
-                let range = a.symbolic().col_range(j);
-                for (&i, &v) in a.symbolic().row_idx()[range.clone()]
-                    .iter()
-                    .zip(&a.val()[range])
-                {
-                    if i >= j && skeleton_of[i] != NONE {
+                for (i, v) in lower_column(a, j) {
+                    if skeleton_of[i] != NONE {
                         visit(skeleton_of[i], sj, v);
                     }
                 }
