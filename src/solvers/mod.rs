@@ -50,6 +50,12 @@ pub struct Constraint {
 }
 
 impl Constraint {
+    /// Takes C out, leaving a 0 × 0 matrix: the Newton multigrid holds C in
+    /// its condensed rows through its solve and puts it back at its end.
+    pub(crate) fn take_matrix(&mut self) -> SparseColMat<usize, f64> {
+        taken(&mut self.matrix)
+    }
+
     /// ḡ_i = ((C x)_i − g_i) / w_i for i, given C x.
     pub fn mean_gap(&self, cx: &[f64], i: usize) -> f64 {
         (cx[i] - self.obstacle[i]) / self.weights[i]
@@ -130,9 +136,14 @@ impl ContactProblem {
     /// Takes A out, leaving a 0 × 0 matrix: a solve that owns the problem
     /// builds its own matrix in A's arrays and puts A back at its end.
     pub(crate) fn take_matrix(&mut self) -> SparseColMat<usize, f64> {
-        let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
-        std::mem::replace(&mut self.matrix, empty)
+        taken(&mut self.matrix)
     }
+}
+
+/// `matrix` taken out, a 0 × 0 matrix left in its place.
+fn taken(matrix: &mut SparseColMat<usize, f64>) -> SparseColMat<usize, f64> {
+    let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
+    std::mem::replace(matrix, empty)
 }
 
 /// A method and its parameters: what [`solve`] runs. Each method's options

@@ -53,7 +53,7 @@
 
 use super::measures::{dual_step_norm, jacobi_dual_diagonal_of, kkt_measures_with, Products};
 use super::monitor::{check_finite, Monitor};
-use super::{ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
+use super::{Constraint, ContactProblem, DualNorm, KktMeasures, ReportBuilder, SolveReport};
 use crate::error::{Error, Result};
 use crate::linalg::{beside, cut, each_in_halves, mat_vec, on_paired_halves, MatrixKind};
 use crate::linalg::{Multigrid, MultigridOptions, SweptLevel};
@@ -873,10 +873,7 @@ pub fn multigrid_newton(
         ));
     }
     let finest = coarser.len();
-    let taken_c = given.constraint.as_mut().map(|c| {
-        let empty = SparseColMat::try_new_from_triplets(0, 0, &[]).expect("an empty matrix");
-        std::mem::replace(&mut c.matrix, empty)
-    });
+    let taken_c = given.constraint.as_mut().map(Constraint::take_matrix);
     let problem = &given;
     let transfers = Transfers {
         prolongations: &prolongations,
